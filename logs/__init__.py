@@ -1,0 +1,1 @@
+"""logs package (see DESIGN.md)."""

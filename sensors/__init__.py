@@ -1,0 +1,1 @@
+"""sensors package (see DESIGN.md)."""
