@@ -25,7 +25,7 @@ from scipy.special import erf
 
 from starid.camera import Camera
 
-__all__ = ["SensorModel", "magnitude_to_electrons", "render_stars", "render_sky"]
+__all__ = ["SensorModel", "magnitude_to_electrons", "render_sky", "render_stars"]
 
 
 @dataclass(frozen=True)

@@ -9,5 +9,18 @@ Example:
 
 from starid import rotations
 from starid.camera import Camera
+from starid.catalog import Catalog
+from starid.detect import Detections, detect
+from starid.solver import Candidate, Prior, Solution, Solver
 
-__all__ = ["Camera", "rotations"]
+__all__ = [
+    "Candidate",
+    "Catalog",
+    "Camera",
+    "Detections",
+    "Prior",
+    "Solution",
+    "Solver",
+    "detect",
+    "rotations",
+]

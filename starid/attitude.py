@@ -70,12 +70,15 @@ def wahba(
     w = 1.0 / sigma**2
     B = (w[:, None] * b).T @ r  # attitude profile matrix Σ w b rᵀ
     u, _, vt = np.linalg.svd(B)
-    d = np.linalg.det(u) * np.linalg.det(vt)
-    R = u @ np.diag([1.0, 1.0, d]) @ vt
-    F = np.einsum("n,nij->ij", w, np.eye(3)[None] - b[:, :, None] * b[:, None, :])
-    if np.linalg.cond(F) > 1e12:
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        u[:, 2] = -u[:, 2]
+    R = u @ vt
+    F = np.sum(w) * np.eye(3) - (w[:, None] * b).T @ b  # Σ w (I − b bᵀ)
+    ev = np.linalg.eigvalsh(F)
+    if ev[0] <= 1e-12 * ev[-1]:
         raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
     P = np.linalg.inv(F)
     pred = r @ R.T
-    res = np.arctan2(np.linalg.norm(np.cross(pred, b), axis=1), np.sum(pred * b, axis=1))
-    return WahbaSolution(rot.from_matrix(R), 0.5 * (P + P.T), res, float(np.sum(w * res**2)))
+    res = np.arctan2(np.linalg.norm(rot.cross(pred, b), axis=1), np.sum(pred * b, axis=1))
+    q = rot.from_matrix(R, orthonormalize=False)
+    return WahbaSolution(q, 0.5 * (P + P.T), res, float(np.sum(w * res**2)))

@@ -34,6 +34,8 @@ from starid.cache import cached_arrays
 __all__ = ["PatternIndex"]
 
 IntArray = NDArray[np.int64]
+N_BINS = 512  # angle bins per neighbour row (≈ 0.04° for a 20° field)
+INDEX_LAYOUT = 2  # bump when the stored arrays change: old cache entries are then ignored
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,6 +50,7 @@ class PatternIndex:
     nbr_ptr: IntArray  # (N + 1,) CSR row pointers
     nbr_idx: NDArray[np.int32]  # neighbours of each star, descending cosine within a row
     nbr_cos: NDArray[np.float64]
+    nbr_bin: NDArray[np.int32]  # (N, B + 1): first CSR entry at angle ≥ b·max_sep/B
 
     @classmethod
     def from_vectors(
@@ -66,7 +69,8 @@ class PatternIndex:
         if cache_tag is None:
             arrays = build()
         else:
-            params = {"max_sep_rad": float(max_sep_rad), "catalog": cache_tag, "n": len(v)}
+            params = {"max_sep_rad": float(max_sep_rad), "catalog": cache_tag, "n": len(v),
+                      "layout": INDEX_LAYOUT}
             arrays = cached_arrays("pattern-index", params, [], build)
         return cls(v, float(max_sep_rad), **arrays)
 
@@ -78,11 +82,13 @@ class PatternIndex:
     def nbytes(self) -> int:
         """Memory held by the index arrays (the catalogue vectors excluded)."""
         return sum(a.nbytes for a in (self.pair_i, self.pair_j, self.pair_cos, self.nbr_ptr,
-                                      self.nbr_idx, self.nbr_cos))
+                                      self.nbr_idx, self.nbr_cos, self.nbr_bin))
 
     def pairs_in_window(self, cos_min: float, cos_max: float) -> tuple[IntArray, IntArray]:
         """Pairs with ``cos_min < cos < cos_max`` (strict, renken.md AC-12), i < j."""
-        lo, hi = _slice_desc(self.pair_cos, cos_min, cos_max)
+        neg = self._neg_pair_cos
+        lo = int(np.searchsorted(neg, -cos_max, side="right"))
+        hi = max(lo, int(np.searchsorted(neg, -cos_min, side="left")))
         return self.pair_i[lo:hi].astype(np.int64), self.pair_j[lo:hi].astype(np.int64)
 
     def neighbours_in_window(
@@ -92,23 +98,24 @@ class PatternIndex:
         """For each star k of ``stars``, its neighbours with ``cos_min < cos < cos_max``.
 
         Returns ``(parent, neighbour)``: ``parent`` indexes into ``stars``. Windows may be
-        scalars or one per star. Vectorised: one searchsorted per bound for all stars.
+        scalars or one per star. Vectorised over all stars: two table look-ups and one
+        exact filter, no per-star search.
         """
         stars = np.asarray(stars, dtype=np.int64)
         if len(stars) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        start = self.nbr_ptr[stars]
-        stop = self.nbr_ptr[stars + 1]
-        cmin = np.broadcast_to(cos_min, stars.shape)
-        cmax = np.broadcast_to(cos_max, stars.shape)
-        # rows are sorted by descending cosine; search on the negated values (ascending),
-        # offset per row so one global searchsorted serves every row
-        neg = self._neg_cos_offset
-        row_off = 4.0 * stars  # rows live in disjoint intervals [4k − 1, 4k + 1]
-        lo = np.searchsorted(neg, row_off - cmax, side="right")
-        hi = np.searchsorted(neg, row_off - cmin, side="left")
-        lo = np.clip(lo, start, stop)
-        hi = np.clip(hi, start, stop)
+        cmin = np.broadcast_to(np.asarray(cos_min, dtype=np.float64), stars.shape)
+        cmax = np.broadcast_to(np.asarray(cos_max, dtype=np.float64), stars.shape)
+        # the bin table gives, per star, where its (angle-sorted) row crosses each bin
+        # edge: the bins covering the window are a superset, filtered exactly below
+        nb = self.nbr_bin.shape[1] - 1
+        step = self.max_sep_rad / nb
+        th_lo = np.arccos(np.clip(cmax, -1.0, 1.0))
+        th_hi = np.arccos(np.clip(cmin, -1.0, 1.0))
+        b0 = np.clip((th_lo / step).astype(np.int64), 0, nb)
+        b1 = np.clip((th_hi / step).astype(np.int64) + 1, 0, nb)
+        lo = self.nbr_bin[stars, b0].astype(np.int64)
+        hi = self.nbr_bin[stars, b1].astype(np.int64)
         counts = np.maximum(hi - lo, 0)
         total = int(counts.sum())
         if total == 0:
@@ -116,24 +123,12 @@ class PatternIndex:
         parent = np.repeat(np.arange(len(stars)), counts)
         offs = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
         pos = np.repeat(lo, counts) + offs
-        return parent, self.nbr_idx[pos].astype(np.int64)
+        c = self.nbr_cos[pos]
+        keep = (c > cmin[parent]) & (c < cmax[parent])
+        return parent[keep], self.nbr_idx[pos[keep]].astype(np.int64)
 
-    @property
-    def _neg_cos_offset(self) -> NDArray[np.float64]:
-        cached = self.__dict__.get("_neg_cache")
-        if cached is None:
-            rows = np.repeat(np.arange(len(self.nbr_ptr) - 1), np.diff(self.nbr_ptr))
-            cached = 4.0 * rows - self.nbr_cos
-            object.__setattr__(self, "_neg_cache", cached)
-        return cached
-
-
-def _slice_desc(values_desc: NDArray[np.float64], cmin: float, cmax: float) -> tuple[int, int]:
-    """Index range of a descending array with cmin < value < cmax."""
-    neg = -values_desc
-    lo = int(np.searchsorted(neg, -cmax, side="right"))
-    hi = int(np.searchsorted(neg, -cmin, side="left"))
-    return lo, max(lo, hi)
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "_neg_pair_cos", -self.pair_cos)  # ascending search key
 
 
 def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:
@@ -157,6 +152,12 @@ def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:
     ptr = np.zeros(len(v) + 1, np.int64)
     np.add.at(ptr, rows + 1, 1)
     ptr = np.cumsum(ptr)
+    # bin table: one sorted global key (row·4 + angle) searched for every (row, edge)
+    edges = np.linspace(0.0, max_sep_rad, N_BINS + 1)
+    key = rows * 4.0 + np.arccos(np.clip(cc, -1.0, 1.0))
+    queries = (np.arange(len(v))[:, None] * 4.0 + edges[None, :]).ravel()
+    table = np.searchsorted(key, queries, side="left").reshape(len(v), N_BINS + 1)
+    table[:, -1] = ptr[1:]  # the last edge closes the row (max_sep itself may round)
     return {
         "pair_i": pi.astype(np.int32),
         "pair_j": pj.astype(np.int32),
@@ -164,4 +165,6 @@ def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:
         "nbr_ptr": ptr,
         "nbr_idx": cols.astype(np.int32),
         "nbr_cos": cc,
+        "nbr_bin": table.astype(np.int32),
     }
+

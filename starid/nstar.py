@@ -76,8 +76,8 @@ class Pattern:
         hi = np.minimum(a + tol_rad, np.pi)
         # δ_max: the largest pair distance plus the tolerance, so the declination
         # pre-check can never reject a pair the window would accept (renken.md §11)
-        dmax = float(np.max(hi[np.triu_indices(n, 1)]))
-        return cls(a, np.cos(hi), np.cos(lo), int(chirality), dmax)
+        # (the diagonal's hi is the bare tolerance, never the maximum)
+        return cls(a, np.cos(hi), np.cos(lo), int(chirality), float(hi.max()))
 
     @classmethod
     def from_vectors(cls, b: NDArray[np.float64], tol_rad: float) -> Pattern:
@@ -97,9 +97,15 @@ def chirality_of(b: NDArray[np.float64], min_altitude_rad: float = 0.0) -> int:
     triangle's smallest altitude is below ``min_altitude_rad`` measurement noise could flip
     the sign, so the mirror check is skipped (verification still catches a mirror).
     """
-    b = np.asarray(b[:3], dtype=np.float64)
-    det = float(b[0] @ np.cross(b[1], b[2]))
-    longest = max(np.linalg.norm(np.cross(b[i], b[(i + 1) % 3])) for i in range(3))
+    (ax, ay, az), (bx, by, bz), (cx, cy, cz) = np.asarray(b[:3], dtype=np.float64).tolist()
+    det = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+
+    def cross_norm(ux: float, uy: float, uz: float, vx: float, vy: float, vz: float) -> float:
+        return float(np.sqrt((uy * vz - uz * vy) ** 2 + (uz * vx - ux * vz) ** 2
+                             + (ux * vy - uy * vx) ** 2))
+
+    longest = max(cross_norm(ax, ay, az, bx, by, bz), cross_norm(bx, by, bz, cx, cy, cz),
+                  cross_norm(cx, cy, cz, ax, ay, az))
     if longest == 0.0 or abs(det) / longest <= min_altitude_rad:
         return 0
     return 1 if det > 0 else -1

@@ -41,6 +41,7 @@ __all__ = [
     "angle_between",
     "canonical",
     "conjugate",
+    "cross",
     "exp_map",
     "from_gtsam",
     "from_matrix",
@@ -140,6 +141,13 @@ def inverse(q: ArrayLike) -> Array:
 def to_matrix(q: ArrayLike) -> Array:
     """Rotation matrix R(q), shape (3, 3) or (N, 3, 3); q need not be exactly unit."""
     q = _as_quat(q)
+    if q.ndim == 1:  # scalar fast path: the solver and filters call this per frame
+        w, x, y, z = (q / np.sqrt(q @ q)).tolist()
+        return np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ])
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = np.moveaxis(q, -1, 0)
     r = np.stack(
@@ -153,20 +161,23 @@ def to_matrix(q: ArrayLike) -> Array:
     return r.reshape((*q.shape[:-1], 3, 3))
 
 
-def from_matrix(r: ArrayLike) -> Array:
+def from_matrix(r: ArrayLike, orthonormalize: bool = True) -> Array:
     """Quaternion (w ≥ 0) of a rotation matrix, by Shepperd's method (stable for all angles).
 
     The input is first projected onto SO(3) by SVD, so a slightly non-orthogonal matrix
-    (accumulated round-off) gives the nearest rotation. A reflection (det < 0) raises.
+    (accumulated round-off) gives the nearest rotation; a reflection (det < 0) raises.
+    ``orthonormalize=False`` skips that for matrices known to be rotations (hot paths).
     """
     r = np.asarray(r, dtype=np.float64)
     if r.shape[-2:] != (3, 3):
         raise ValueError(f"rotation matrix must be 3x3, got shape {r.shape}")
-    u, _, vt = np.linalg.svd(r)
-    det = np.linalg.det(u @ vt)
-    if np.any(det < 0):
-        raise ValueError("matrix is a reflection (det < 0), not a rotation")
-    r = u @ vt
+    if orthonormalize:
+        u, _, vt = np.linalg.svd(r)
+        if np.any(np.linalg.det(u @ vt) < 0):
+            raise ValueError("matrix is a reflection (det < 0), not a rotation")
+        r = u @ vt
+    if r.ndim == 2:
+        return _from_matrix_single(r)
     m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
     trace = m00 + m11 + m22
     cand = np.stack([trace, m00, m11, m22], axis=-1)
@@ -175,6 +186,37 @@ def from_matrix(r: ArrayLike) -> Array:
     with np.errstate(divide="ignore", invalid="ignore"):
         q = _shepperd_branches(r, m00, m11, m22, trace, k)
     return normalize(q)
+
+
+def _from_matrix_single(r: Array) -> Array:
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = r.tolist()
+    tr = m00 + m11 + m22
+    k = max(range(4), key=(tr, m00, m11, m22).__getitem__)
+    if k == 0:
+        t = 2.0 * np.sqrt(max(1.0 + tr, 0.0))
+        q = [0.25 * t, (m21 - m12) / t, (m02 - m20) / t, (m10 - m01) / t]
+    elif k == 1:
+        t = 2.0 * np.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
+        q = [(m21 - m12) / t, 0.25 * t, (m01 + m10) / t, (m02 + m20) / t]
+    elif k == 2:
+        t = 2.0 * np.sqrt(max(1.0 - m00 + m11 - m22, 0.0))
+        q = [(m02 - m20) / t, (m01 + m10) / t, 0.25 * t, (m12 + m21) / t]
+    else:
+        t = 2.0 * np.sqrt(max(1.0 - m00 - m11 + m22, 0.0))
+        q = [(m10 - m01) / t, (m02 + m20) / t, (m12 + m21) / t, 0.25 * t]
+    return normalize(np.array(q))
+
+
+def cross(a: ArrayLike, b: ArrayLike) -> Array:
+    """Row-wise cross product of (N, 3) arrays (several times faster than np.cross)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a, b = np.broadcast_arrays(a, b)
+    out = np.empty(a.shape)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def _shepperd_branches(r: Array, m00: Array, m11: Array, m22: Array, trace: Array,

@@ -1,0 +1,542 @@
+"""Lost-in-space star identification: detections + camera → verified attitude.
+
+The pipeline for one frame (renken.md §4–§9, with a verification stage of our own):
+
+1. take the brightest ``n_max`` detections (3…6) as the pattern, closest pair first;
+2. enumerate every catalogue assignment consistent with all pair distances
+   (:mod:`starid.nstar`; the count is Renken's ``matching_counter``);
+3. verify each assignment: Wahba attitude, project the catalogue, match the other
+   detections, and compute the false-match probability (:mod:`starid.verify`);
+4. accept when exactly one attitude survives below ``p_false_max``; several surviving
+   attitudes → ``not ok``, reason ``ambiguous``, all listed in ``candidates``;
+5. otherwise Renken's Not-Modus: every (n−1)-star sub-pattern, then every (n−2)-star one
+   (never fewer than 3 stars), then fainter detections swapped in — in a fixed order, with
+   the path that succeeded recorded in ``Solution.path``.
+
+An unknown focal length (``fov_error_deg``) is handled by a grid of focal scales whose
+spacing the windows absorb, then a least-squares refinement of the focal length from all
+matched stars.
+
+Example:
+    >>> import numpy as np
+    >>> import starid
+    >>> from starid import rotations as rot
+    >>> cat = starid.Catalog.hipparcos(mag_limit=5.5)
+    >>> cam = starid.Camera.pinhole(1024, 768, 15.0)
+    >>> q = rot.q_cam_icrs_from_radec_roll(*np.radians([10.0, 60.0, 20.0]))
+    >>> v = rot.rotate(q, cat.vectors)
+    >>> xy = cam.vectors_to_pixels(v[v[:, 2] > 0])
+    >>> xy = xy[cam.in_frame(xy)]
+    >>> order = np.argsort(cat.mag[v[:, 2] > 0][cam.in_frame(cam.vectors_to_pixels(
+    ...     v[v[:, 2] > 0]))])
+    >>> sol = starid.Solver(cat, cam).solve(xy[order])
+    >>> sol.ok, bool(np.degrees(rot.angle_between(sol.q_cam_icrs, q)) < 1e-6)
+    (True, True)
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from starid import rotations as rot
+from starid.attitude import wahba
+from starid.calibrate import fit_camera
+from starid.camera import Camera
+from starid.index import PatternIndex
+from starid.nstar import (
+    Pattern,
+    WorkBudgetExceeded,
+    chirality_of,
+    closest_pair_first,
+    match_faithful,
+    match_indexed,
+)
+from starid.verify import DENSITY_SAFETY, binomial_tail, expected_chance_patterns
+
+__all__ = ["Candidate", "Prior", "Solution", "Solver"]
+
+
+@dataclass(frozen=True)
+class Prior:
+    """An attitude prior for tracking: ``q_cam_icrs`` with a 1-σ uncertainty (deg)."""
+
+    q_cam_icrs: NDArray[np.float64]
+    sigma_deg: float
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One verified geometric match (an entry of the operator-confirmation list)."""
+
+    q_cam_icrs: NDArray[np.float64]
+    matches: list[tuple[int, int]]  # (detection index, catalogue id)
+    residuals_rad: NDArray[np.float64]
+    p_false: float
+    n_pattern: int
+    predicted_xy: NDArray[np.float64]  # catalogue stars projected into the frame
+    predicted_ids: NDArray[np.int64]
+    camera: Camera
+    covariance: NDArray[np.float64]  # 3×3, camera frame, rad²
+
+    @property
+    def radec_roll_deg(self) -> tuple[float, float, float]:
+        return tuple(float(np.degrees(a)) for a in rot.radec_roll_from_q_cam_icrs(
+            self.q_cam_icrs))  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class Solution:
+    """Result of :meth:`Solver.solve` (DESIGN.md "Public API")."""
+
+    ok: bool
+    reason: str = ""
+    q_cam_icrs: NDArray[np.float64] | None = None
+    matches: list[tuple[int, int]] = field(default_factory=list)
+    matching_counter: int = 0
+    covariance: NDArray[np.float64] | None = None
+    mode: str = "lost-in-space"
+    time_s: float = 0.0
+    p_false: float | None = None
+    path: str = ""
+    candidates: list[Candidate] = field(default_factory=list)
+    residuals_rad: NDArray[np.float64] | None = None
+    camera: Camera | None = None
+    n_detections: int = 0
+    patterns_tried: int = 0
+
+    @property
+    def ra_dec_roll_deg(self) -> tuple[float, float, float] | None:
+        """Boresight RA, Dec and roll (deg; roll as in :mod:`starid.rotations`)."""
+        if self.q_cam_icrs is None:
+            return None
+        return tuple(float(np.degrees(a)) for a in rot.radec_roll_from_q_cam_icrs(
+            self.q_cam_icrs))  # type: ignore[return-value]
+
+    @property
+    def rms_residual_arcsec(self) -> float | None:
+        if self.residuals_rad is None or len(self.residuals_rad) == 0:
+            return None
+        return float(np.degrees(np.sqrt(np.mean(self.residuals_rad**2))) * 3600)
+
+
+class Solver:
+    """Lost-in-space identification against a catalogue for one camera.
+
+    Args:
+        catalog: a :class:`starid.Catalog` (anything with ``vectors`` and ``ids``).
+        camera: the :class:`starid.Camera` (its focal length is the FOV estimate).
+        tolerance_deg: pair-distance tolerance; default from the camera and
+            ``centroid_sigma_px``: 3·√2·σ·pixel scale plus 0.003° for lens residuals.
+        centroid_sigma_px: 1-σ centroid error, used for the tolerance, match radius and
+            covariance.
+        n_max, n_min: pattern sizes (renken.md: 3…6).
+        p_false_max: acceptance threshold on the false-match probability.
+        fov_error_deg: ± uncertainty of the camera's horizontal FOV (0 = known).
+        faithful: use Renken's reference nested loops instead of the index (slow).
+        n_bands: Renken's declination sub-catalogues (1 = none); results are identical.
+        dec_check: Renken's declination-difference pre-check (faithful mode only).
+        max_detections: the brightest detections considered (the rest are ignored).
+        max_patterns: Not-Modus budget (patterns tried per focal scale).
+        work_budget: maximum partial assignments per matching level.
+    """
+
+    def __init__(
+        self,
+        catalog,
+        camera: Camera,
+        *,
+        tolerance_deg: float | None = None,
+        centroid_sigma_px: float = 0.5,
+        n_max: int = 6,
+        n_min: int = 3,
+        p_false_max: float = 1e-6,
+        fov_error_deg: float = 0.0,
+        faithful: bool = False,
+        n_bands: int = 1,
+        dec_check: bool = True,
+        max_detections: int = 30,
+        max_patterns: int = 200,
+        work_budget: int = 200_000,
+        cache: bool = True,
+    ) -> None:
+        if not 2 <= n_min <= n_max <= 8:
+            raise ValueError(f"need 2 ≤ n_min ≤ n_max ≤ 8, got {n_min}, {n_max}")
+        if centroid_sigma_px <= 0 or not np.isfinite(centroid_sigma_px):
+            raise ValueError("centroid_sigma_px must be positive")
+        if not 0 <= fov_error_deg < camera.fov_x_deg:
+            raise ValueError(f"fov_error_deg must be in [0, {camera.fov_x_deg:.2f}) for this "
+                             f"camera, got {fov_error_deg}")
+        if not 0 < p_false_max < 1:
+            raise ValueError("p_false_max must be in (0, 1)")
+        self.catalog = catalog
+        self.camera = camera
+        self.vectors = np.asarray(catalog.vectors, dtype=np.float64)
+        self.ids = np.asarray(catalog.ids, dtype=np.int64)
+        if len(self.vectors) < 3:
+            raise ValueError(f"the catalogue holds {len(self.vectors)} stars; need ≥ 3")
+        self.centroid_sigma_px = float(centroid_sigma_px)
+        sigma_rad = self.centroid_sigma_px * camera.pixel_scale_rad
+        self.tolerance_rad = (np.radians(tolerance_deg) if tolerance_deg is not None
+                              else 3.0 * np.sqrt(2.0) * sigma_rad + np.radians(0.003))
+        self.n_max, self.n_min = n_max, n_min
+        self.p_false_max = p_false_max
+        self.fov_error_deg = float(fov_error_deg)
+        self.faithful = faithful
+        self.n_bands = int(n_bands)
+        self.dec_check = dec_check
+        self.max_detections = int(max_detections)
+        self.max_patterns = int(max_patterns)
+        self.work_budget = int(work_budget)
+        widest = camera.scaled(self._focal_scales()[0]) if fov_error_deg else camera
+        self.max_sep_rad = float(np.radians(widest.diagonal_fov_deg) + 2 * self.tolerance_rad)
+        tag = _catalog_tag(self.vectors) if cache else None
+        t0 = time.perf_counter()
+        self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
+        self.index_build_s = time.perf_counter() - t0
+        self._tree = cKDTree(self.vectors)
+
+    # --- public -----------------------------------------------------------------------
+
+    def solve(self, detections, prior: Prior | None = None) -> Solution:
+        """Identify the stars of one frame.
+
+        ``detections`` is a :class:`starid.Detections`, or an (N, 2) array of pixel
+        positions (brightest first), or (N, 3) with flux as the third column (sorted here).
+        Problems with the data give ``ok=False`` with a ``reason``; only a wrong type or
+        shape raises.
+        """
+        t0 = time.perf_counter()
+        if prior is not None:
+            raise NotImplementedError("tracking with a prior arrives with the estimation work")
+        xy, problem = self._parse(detections)
+        if problem:
+            return Solution(False, problem, time_s=time.perf_counter() - t0,
+                            n_detections=len(xy))
+        best: Solution | None = None
+        trials = 0
+        for scale in self._focal_scales():
+            cam = self.camera.scaled(scale) if scale != 1.0 else self.camera
+            sol, tried = self._solve_at(xy, cam, trials, scale)
+            trials += tried
+            if sol.ok or sol.reason.startswith("ambiguous"):
+                best = sol
+                break
+            if best is None or sol.matching_counter > best.matching_counter:
+                best = sol
+        assert best is not None
+        return _replace(best, time_s=time.perf_counter() - t0, n_detections=len(xy),
+                        patterns_tried=trials)
+
+    # --- internals ----------------------------------------------------------------------
+
+    def _parse(self, detections) -> tuple[NDArray[np.float64], str]:
+        if hasattr(detections, "xy"):
+            xy = np.asarray(detections.xy, dtype=np.float64)
+            if getattr(detections, "ok", True) is False:
+                return xy, f"detection not ok: {detections.reason}"
+        else:
+            arr = np.asarray(detections, dtype=np.float64)
+            if arr.ndim != 2 or arr.shape[1] not in (2, 3):
+                raise ValueError(f"detections must be (N, 2) xy or (N, 3) xy+flux, got "
+                                 f"shape {arr.shape}")
+            if arr.shape[1] == 3:
+                arr = arr[np.argsort(-arr[:, 2], kind="stable")]
+            xy = arr[:, :2]
+        if len(xy) < 3:
+            return xy, f"too few detections ({len(xy)} < 3)"
+        bad = ~np.isfinite(xy).all(axis=1)
+        if bad.any():
+            return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at row " \
+                       f"{int(np.flatnonzero(bad)[0])}"
+        use = xy[: self.max_detections]
+        d, j = cKDTree(use).query(use, k=2)
+        dup = np.flatnonzero(d[:, 1] < 1e-6)
+        if len(dup):
+            return xy, f"bad input: duplicate centroids at rows {int(dup[0])} and " \
+                       f"{int(j[dup[0], 1])}"
+        outside = ~self.camera.in_frame(use, margin=-0.5 * max(self.camera.width,
+                                                               self.camera.height))
+        if outside.any():
+            return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies far " \
+                       "outside the frame"
+        return use, ""
+
+    def _focal_scales(self) -> list[float]:
+        """Focal-length multipliers covering the FOV uncertainty (1.0 first)."""
+        if self.fov_error_deg == 0:
+            return [1.0]
+        half = np.radians(self.camera.fov_x_deg) / 2
+        lo = np.tan(half) / np.tan(half + np.radians(self.fov_error_deg) / 2)
+        hi = np.tan(half) / np.tan(max(half - np.radians(self.fov_error_deg) / 2, 1e-6))
+        n = max(3, int(np.ceil(np.log(hi / lo) / np.log1p(self._scale_step))) + 1)
+        grid = np.exp(np.linspace(np.log(lo), np.log(hi), n))
+        order = np.argsort(np.abs(np.log(grid)))
+        return [1.0, *[float(g) for g in grid[order] if abs(np.log(g)) > 1e-12]]
+
+    _scale_step = 0.01  # 1 % focal steps; windows widen by half a step × distance
+
+    def _patterns(self, n_det: int) -> Iterator[tuple[tuple[int, ...], str]]:
+        """Patterns in a fixed order: Renken's main pattern, his Not-Modus ((n−1)- and
+        (n−2)-star sub-patterns, then fainter detections swapped in), then — our
+        extension for frames with several false objects among the brightest — every
+        3-star and then 4-star combination of the brightest ``max_detections``, brightest
+        combinations first (ordered by their faintest member). Verification against all
+        other detections is what makes a 3-star pattern trustworthy."""
+        n = min(self.n_max, n_det)
+        base = tuple(range(n))
+        seen: set[tuple[int, ...]] = set()
+
+        def fresh(p: tuple[int, ...]) -> bool:
+            if p in seen or len(p) < max(self.n_min, 3):
+                return False
+            seen.add(p)
+            return True
+
+        if fresh(base):
+            yield base, f"n={n}"
+        for k in (n - 1, n - 2):
+            # drop the faintest stars first: false objects are more often faint
+            for keep in sorted(itertools.combinations(base, k), key=lambda c: sorted(
+                    set(base) - set(c), reverse=True), reverse=True):
+                if fresh(keep):
+                    yield keep, f"not-modus {k}-of-{n} {list(keep)}"
+        for extra in range(n, min(n_det, 2 * n)):  # the next n fainter detections
+            for out in reversed(base):
+                pat = tuple(sorted((set(base) - {out}) | {extra}))
+                if fresh(pat):
+                    yield pat, f"not-modus swap {extra} for {out}"
+        for k in (3, 4):  # 3-star patterns first: among false objects they are more often clean
+            if k < self.n_min:
+                continue
+            for last in range(k - 1, n_det):
+                for head in itertools.combinations(range(last), k - 1):
+                    pat = (*head, last)
+                    if fresh(pat):
+                        yield pat, f"combination {list(pat)}"
+
+    def _solve_at(self, xy: NDArray, cam: Camera, trials0: int,
+                  scale: float) -> tuple[Solution, int]:
+        b_all = cam.pixels_to_vectors(xy)
+        tried = 0
+        first_counter = None
+        reason = "no match"
+        rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
+        for pat_idx, path in self._patterns(len(xy)):
+            if tried >= self.max_patterns:
+                reason = f"no verified match within {self.max_patterns} patterns"
+                break
+            tried += 1
+            sel = np.array(pat_idx)
+            b = b_all[sel]
+            ang = np.arccos(np.clip(b @ b.T, -1, 1))
+            np.fill_diagonal(ang, 0.0)
+            order = closest_pair_first(ang)
+            sel, b, ang = sel[order], b[order], ang[np.ix_(order, order)]
+            tol = self.tolerance_rad + rel_tol * ang
+            pattern = _pattern(ang, b, tol)
+            try:
+                assignments = self._match(pattern)
+            except WorkBudgetExceeded as e:
+                reason = f"work budget exceeded ({e})"
+                continue
+            if first_counter is None:
+                first_counter = len(assignments)
+            if len(assignments) == 0:
+                continue
+            e_trials = expected_chance_patterns(ang, tol, len(self.vectors),
+                                                pattern.chirality != 0) * (trials0 + tried)
+            cands: list[Candidate] = []
+            best_quick = 1.0
+            for a in assignments:
+                quick = self._quick_check(b_all, sel, a, cam, e_trials)
+                if quick is None:
+                    continue
+                best_quick = min(best_quick, quick[0])
+                if quick[0] <= self.p_false_max:
+                    c = self._verify(xy, cam, sel, a, quick[1], e_trials)
+                    if c is not None:
+                        cands.append(c)
+            accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
+                                 3 * self.tolerance_rad)
+            if len(accepted) == 1:
+                return self._solution(accepted[0], len(assignments), path, cands), tried
+            if len(accepted) > 1:
+                return Solution(
+                    False, f"ambiguous: {len(accepted)} distinct attitudes verified",
+                    matching_counter=len(assignments), path=path,
+                    candidates=sorted(accepted, key=lambda c: c.p_false),
+                ), tried
+            if best_quick < 1.0:
+                reason = (f"insufficient evidence: best candidate p_false {best_quick:.2g}"
+                          f" > {self.p_false_max:.0e}")
+        return Solution(False, reason, matching_counter=first_counter or 0), tried
+
+    def _match_radius_px(self) -> float:
+        return max(3.0 * np.sqrt(2.0) * self.centroid_sigma_px, 1.5)
+
+    def _p_hit(self, anchor: int, radius_rad: float) -> float:
+        """Chance that a random detection falls within the match radius of a catalogue
+        star: local density (neighbours of the anchor star within the index radius), at
+        least the sky mean, times a safety factor."""
+        cnt = self.index.nbr_ptr[anchor + 1] - self.index.nbr_ptr[anchor]
+        area = 2 * np.pi * (1 - np.cos(self.max_sep_rad))
+        rho = max(cnt / area, len(self.vectors) / (4 * np.pi)) * DENSITY_SAFETY
+        return min(1.0, rho * np.pi * radius_rad**2)
+
+    def _associate_icrs(self, b_all: NDArray, R: NDArray,
+                        radius_rad: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Detections ↔ catalogue stars within a radius, at attitude R (cam ← icrs): each
+        detection's nearest star, one-to-one (a star claimed twice goes to the closer)."""
+        d, j = self._tree.query(b_all @ R, distance_upper_bound=2 * np.sin(radius_rad / 2))
+        det = np.flatnonzero(np.isfinite(d))
+        if len(det) == 0:
+            return det.astype(np.int64), det.astype(np.int64)
+        det = det[np.lexsort((det, d[det]))]
+        _, first = np.unique(j[det], return_index=True)
+        det = np.sort(det[first])
+        return det.astype(np.int64), j[det].astype(np.int64)
+
+    def _quick_check(self, b_all: NDArray, sel: NDArray, assign: NDArray, cam: Camera,
+                     e_trials: float) -> tuple[float, NDArray] | None:
+        """Cheap verification: attitude from the pattern, every detection rotated into
+        ICRS and matched in one KD-tree query. Returns (p_false, R) or None."""
+        R = _rotation_from_pairs(b_all[sel], self.vectors[assign])
+        if R is None:
+            return None
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        det_i, cat_i = self._associate_icrs(b_all, R, radius)
+        got = dict(zip(det_i.tolist(), cat_i.tolist(), strict=True))
+        if any(got.get(int(d)) != int(c) for d, c in zip(sel, assign, strict=True)):
+            return None
+        k_other = len(det_i) - len(sel)
+        p = e_trials * binomial_tail(k_other, len(b_all) - len(sel),
+                                     self._p_hit(int(assign[0]), radius))
+        return min(1.0, p), R
+
+    def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
+                R: NDArray, e_trials: float) -> Candidate | None:
+        """Full verification of a candidate that passed the quick check: refit on all
+        matches (and the focal length when it is uncertain), final association,
+        covariance, and the catalogue projected into the frame for overlays."""
+        b_all = cam.pixels_to_vectors(xy)
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+        for _ in range(2):
+            det_i, cat_i = self._associate_icrs(b_all, R, radius)
+            if self.fov_error_deg > 0 and len(det_i) >= 4:
+                fit = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
+                                 try_mirror=False)
+                cam = fit.camera
+                b_all = cam.pixels_to_vectors(xy)
+                radius = self._match_radius_px() * cam.pixel_scale_rad
+                sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+            try:
+                w = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+            except ValueError:
+                return None
+            R = rot.to_matrix(w.q_cam_icrs)
+        det_i, cat_i = self._associate_icrs(b_all, R, radius)
+        got = dict(zip(det_i.tolist(), cat_i.tolist(), strict=True))
+        if any(got.get(int(d)) != int(c) for d, c in zip(sel, assign, strict=True)):
+            return None
+        final = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+        k_other = len(det_i) - len(sel)
+        p_false = min(1.0, e_trials * binomial_tail(k_other, len(xy) - len(sel),
+                                                    self._p_hit(int(assign[0]), radius)))
+        pred_xy, pred_idx = self._project(final.q_cam_icrs, cam)
+        return Candidate(
+            q_cam_icrs=final.q_cam_icrs,
+            matches=[(int(d), int(self.ids[c])) for d, c in zip(det_i, cat_i, strict=True)],
+            residuals_rad=final.residuals_rad,
+            p_false=p_false,
+            n_pattern=len(sel),
+            predicted_xy=pred_xy,
+            predicted_ids=self.ids[pred_idx],
+            camera=cam,
+            covariance=final.covariance,
+        )
+
+    def _match(self, pattern: Pattern) -> NDArray[np.int64]:
+        if self.faithful:
+            return match_faithful(self.vectors, pattern, self.dec_check, self._band_masks(
+                pattern))
+        if self.n_bands > 1:
+            parts = [match_indexed(self.index, pattern, self.work_budget, m)
+                     for m in self._band_masks(pattern)]
+            allm = np.concatenate(parts)
+            return np.unique(allm, axis=0) if len(allm) else allm
+        return match_indexed(self.index, pattern, self.work_budget)
+
+    def _band_masks(self, pattern: Pattern) -> list[NDArray[np.bool_]] | None:
+        if self.n_bands <= 1:
+            return None
+        dec = np.arcsin(np.clip(self.vectors[:, 2], -1, 1))
+        edges = np.arcsin(np.linspace(1.0, -1.0, self.n_bands + 1))
+        o = pattern.delta_max_rad
+        return [(dec <= hi + o) & (dec >= lo - o) for hi, lo in itertools.pairwise(edges)]
+
+    def _project(self, q: NDArray, cam: Camera) -> tuple[NDArray, NDArray[np.int64]]:
+        boresight = rot.rotate(rot.inverse(q), [0.0, 0.0, 1.0])
+        half = 0.5 * np.radians(cam.diagonal_fov_deg) + 1e-3
+        idx = np.array(self._tree.query_ball_point(boresight, 2 * np.sin(half / 2)),
+                       dtype=np.int64)
+        if len(idx) == 0:
+            return np.zeros((0, 2)), idx
+        v = rot.rotate(q, self.vectors[idx])
+        pxy = cam.vectors_to_pixels(v)
+        inside = cam.in_frame(pxy)
+        return pxy[inside], idx[inside]
+
+    def _solution(self, c: Candidate, counter: int, path: str,
+                  cands: list[Candidate]) -> Solution:
+        return Solution(
+            True, "", q_cam_icrs=c.q_cam_icrs, matches=c.matches, matching_counter=counter,
+            covariance=c.covariance, p_false=c.p_false, path=path, candidates=cands,
+            residuals_rad=c.residuals_rad, camera=c.camera,
+        )
+
+
+def _pattern(ang: NDArray, b: NDArray, tol: NDArray) -> Pattern:
+    n = len(ang)
+    t = np.broadcast_to(tol, (n, n))
+    lo = np.maximum(ang - t, 0.0)
+    hi = np.minimum(ang + t, np.pi)
+    chir = chirality_of(b, 2.0 * float(np.max(t))) if n >= 3 else 0
+    return Pattern(ang, np.cos(hi), np.cos(lo), chir, float(hi.max()))
+
+
+def _rotation_from_pairs(b: NDArray, r: NDArray) -> NDArray | None:
+    """Least-squares rotation (cam ← icrs) from matched directions (lean SVD Wahba)."""
+    u, sv, vt = np.linalg.svd(b.T @ r)
+    if sv[1] < 1e-12 * max(sv[0], 1e-300):
+        return None  # collinear: rotation about the common axis undetermined
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        u[:, 2] = -u[:, 2]
+    return u @ vt
+
+
+def _distinct(cands: list[Candidate], tol_rad: float) -> list[Candidate]:
+    """Collapse candidates with the same attitude (e.g. a swapped close pair)."""
+    out: list[Candidate] = []
+    for c in sorted(cands, key=lambda c: c.p_false):
+        if all(rot.angle_between(c.q_cam_icrs, o.q_cam_icrs) > tol_rad for o in out):
+            out.append(c)
+    return out
+
+
+def _catalog_tag(vectors: NDArray) -> str:
+    return hashlib.sha1(np.ascontiguousarray(vectors).tobytes()).hexdigest()
+
+
+def _replace(sol: Solution, **kw) -> Solution:
+    from dataclasses import replace
+
+    return replace(sol, **kw)

@@ -1,0 +1,68 @@
+"""Helpers for the 8 real frames in ``shared/data/real-images`` and their reference solutions.
+
+``truth.json`` gives, per frame, a 3×3 grid of pixels with the ICRS RA/Dec that an
+independent astrometry.net solution assigns. Fitting our camera model (attitude and
+focal length) to that grid gives a reference attitude to score detection and
+identification against, with no roll-convention bookkeeping.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+from starid import Camera
+from starid import rotations as rot
+from starid.calibrate import CameraFit, fit_camera
+
+OBS_EPOCH = 2019.575  # 2019-07-29
+
+
+@dataclass(frozen=True)
+class RealFrame:
+    name: str
+    path: Path
+    grid_xy: np.ndarray
+    grid_icrs: np.ndarray
+    fov_x_deg: float
+    fit: CameraFit
+
+
+@cache
+def load_frames(shared: Path) -> tuple[RealFrame, ...]:
+    root = shared / "data" / "real-images"
+    truth = json.loads((root / "truth.json").read_text())
+    frames = []
+    for name, t in sorted(truth.items()):
+        xy = np.array([[g["x"], g["y"]] for g in t["grid"]])
+        icrs = rot.radec_to_vector(np.radians([g["ra_deg"] for g in t["grid"]]),
+                                   np.radians([g["dec_deg"] for g in t["grid"]]))
+        cam0 = Camera.pinhole(t["width"], t["height"], t["fov_x_deg"])
+        fit = fit_camera(xy, icrs, cam0, fit_focal=True)
+        frames.append(RealFrame(name, root / f"{name}.tiff", xy, icrs, t["fov_x_deg"], fit))
+    return tuple(frames)
+
+
+def grid_errors_deg(frame: RealFrame, camera: Camera, q_cam_icrs: np.ndarray) -> np.ndarray:
+    """Angle between each grid pixel's line of sight (our solution) and the reference."""
+    b = camera.pixels_to_vectors(frame.grid_xy)
+    r_ours = rot.rotate(rot.inverse(q_cam_icrs), b)
+    cosang = np.clip(np.sum(r_ours * frame.grid_icrs, axis=1), -1, 1)
+    return np.degrees(np.arccos(cosang))
+
+
+def projected_stars(frame: RealFrame, vectors_icrs: np.ndarray) -> np.ndarray:
+    """Indices and pixel positions of catalogue stars inside the frame at the reference fit."""
+    v = rot.rotate(frame.fit.q_cam_icrs, vectors_icrs)
+    front = np.flatnonzero(v[:, 2] > 0)
+    xy = frame.fit.camera.vectors_to_pixels(v[front])
+    inside = frame.fit.camera.in_frame(xy)
+    return front[inside], xy[inside]
+
+
+def load_json(path: Path) -> dict:
+    return json.loads(Path(path).read_text())

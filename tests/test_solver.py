@@ -1,0 +1,175 @@
+"""Lost-in-space identification: correct on synthetic skies, never wrong on noise, honest
+about bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import starid
+from starid import rotations as rot
+
+
+@pytest.fixture(scope="module")
+def cat():
+    return starid.Catalog.hipparcos(mag_limit=6.0, epoch=2025.0)
+
+
+@pytest.fixture(scope="module")
+def cam():
+    return starid.Camera.pinhole(1024, 768, 15.0)
+
+
+@pytest.fixture(scope="module")
+def solver(cat, cam):
+    return starid.Solver(cat, cam)
+
+
+def sky_frame(cat, cam, rng, sigma_px=0.3, n_false=0, drop=0.0, mag_noise=0.1):
+    """Centroids of the catalogue stars in view (brightest first), with noise, dropouts
+    and false stars; returns (xy, q_cam_icrs)."""
+    q = rot.q_cam_icrs_from_radec_roll(rng.uniform(0, 2 * np.pi),
+                                       np.arcsin(rng.uniform(-1, 1)),
+                                       rng.uniform(0, 2 * np.pi))
+    v = rot.rotate(q, cat.vectors)
+    front = np.flatnonzero(v[:, 2] > 0)
+    xy = cam.vectors_to_pixels(v[front])
+    inside = cam.in_frame(xy)
+    xy, mag = xy[inside], cat.mag[front][inside] + rng.normal(0, mag_noise, inside.sum())
+    keep = rng.uniform(size=len(xy)) >= drop
+    xy, mag = xy[keep], mag[keep]
+    xy = xy + rng.normal(0, sigma_px, xy.shape)
+    if n_false:
+        fx = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (n_false, 2))
+        xy = np.vstack([xy, fx])
+        mag = np.concatenate([mag, rng.uniform(mag.min() if len(mag) else 3, 6.0, n_false)])
+    return xy[np.argsort(mag, kind="stable")], q
+
+
+def attitude_error_deg(sol, q) -> float:
+    return float(np.degrees(rot.angle_between(sol.q_cam_icrs, q)))
+
+
+@pytest.mark.parametrize("n_false, drop", [(0, 0.0), (3, 0.0), (8, 0.0), (3, 0.3)])
+def test_random_skies_are_identified_and_never_wrong(solver, cat, cam, n_false, drop):
+    rng = np.random.default_rng(100 + n_false + int(drop * 10))
+    ok = wrong = 0
+    n = 40
+    for _ in range(n):
+        xy, q = sky_frame(cat, cam, rng, n_false=n_false, drop=drop)
+        sol = solver.solve(xy)
+        if sol.ok:
+            err = attitude_error_deg(sol, q)
+            wrong += err > 0.05
+            ok += err <= 0.05
+            assert sol.p_false is not None and sol.p_false <= solver.p_false_max
+            assert sol.covariance.shape == (3, 3)
+            # the reported 1σ covers the actual error (generously: 5σ)
+            assert np.radians(err) < 5 * np.sqrt(np.trace(sol.covariance)) + 1e-6
+    assert wrong == 0
+    assert ok >= 0.95 * n
+
+
+def test_solution_fields_and_matches_are_consistent(solver, cat, cam):
+    xy, q = sky_frame(cat, cam, np.random.default_rng(7))
+    sol = solver.solve(xy)
+    assert sol.ok and sol.mode == "lost-in-space" and sol.reason == ""
+    assert sol.matching_counter >= 1 and sol.time_s > 0
+    assert len(sol.matches) >= 6
+    pos = {int(h): k for k, h in enumerate(cat.ids)}
+    for det_i, hip in sol.matches:
+        pred = cam.vectors_to_pixels(rot.rotate(q, cat.vectors[pos[hip]]))[0]
+        assert np.hypot(*(pred - xy[det_i])) < 3.0
+    ra, dec, roll = sol.ra_dec_roll_deg
+    ra0, dec0, roll0 = np.degrees(rot.radec_roll_from_q_cam_icrs(q))
+    assert abs(dec - dec0) < 0.01
+    assert sol.rms_residual_arcsec < 60
+
+
+def test_not_modus_recovers_when_a_bright_false_star_spoils_the_pattern(solver, cat, cam):
+    rng = np.random.default_rng(11)
+    xy, q = sky_frame(cat, cam, rng)
+    spoiled = np.vstack([xy[:2], [[37.0, 701.0]], xy[2:]])  # a false star third-brightest
+    sol = solver.solve(spoiled)
+    assert sol.ok and attitude_error_deg(sol, q) < 0.05
+    assert sol.path.startswith("not-modus"), sol.path
+    assert all(d != 2 for d, _ in sol.matches)
+
+
+def test_random_detections_are_never_accepted(solver, cam):
+    # the issue's "never wrong" criterion, reduced (the benchmark runs 10 000 frames)
+    rng = np.random.default_rng(2024)
+    accepted = 0
+    for _ in range(300):
+        n = int(rng.integers(3, 31))
+        xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (n, 2))
+        accepted += solver.solve(xy).ok
+    assert accepted == 0
+
+
+@pytest.mark.parametrize(
+    "xy, reason",
+    [
+        (np.zeros((0, 2)), "too few"),
+        (np.array([[10.0, 10.0], [50.0, 80.0]]), "too few"),
+        (np.array([[10.0, 10.0], [np.nan, 80.0], [30.0, 40.0], [60, 70]]), "non-finite"),
+        (np.array([[10.0, 10.0], [50.0, 80.0], [10.0, 10.0], [60, 70]]), "duplicate"),
+        (np.array([[10.0, 10.0], [50.0, 80.0], [1e7, 10.0], [60, 70]]), "outside"),
+    ],
+)
+def test_bad_input_gives_not_ok_with_reason(solver, xy, reason):
+    sol = solver.solve(xy)
+    assert not sol.ok and reason in sol.reason
+
+
+def test_bad_input_shapes_raise(solver):
+    with pytest.raises(ValueError, match=r"\(N, 2\)"):
+        solver.solve(np.zeros((5, 4)))
+    with pytest.raises(ValueError, match="n_min"):
+        starid.Solver(starid.Catalog.hipparcos(mag_limit=3.0), starid.Camera.pinhole(64, 64, 10),
+                      n_min=5, n_max=4)
+
+
+def test_huge_detection_lists_are_bounded(solver, cat, cam):
+    rng = np.random.default_rng(5)
+    xy, q = sky_frame(cat, cam, rng)
+    noise = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (100_000, 2))
+    sol = solver.solve(np.vstack([xy, noise]))
+    assert sol.n_detections == solver.max_detections
+    assert sol.ok and attitude_error_deg(sol, q) < 0.05
+
+
+def test_wrong_fov_is_not_ok_rather_than_wrong(cat):
+    rng = np.random.default_rng(9)
+    true_cam = starid.Camera.pinhole(1024, 768, 15.0)
+    wrong_cam = starid.Camera.pinhole(1024, 768, 15.0 * 1.3)
+    s = starid.Solver(cat, wrong_cam)
+    for _ in range(10):
+        xy, q = sky_frame(cat, true_cam, rng)
+        sol = s.solve(xy)
+        assert not sol.ok or attitude_error_deg(sol, q) < 0.1
+
+
+def test_fov_search_recovers_focal_length(cat):
+    rng = np.random.default_rng(4)
+    true_cam = starid.Camera.pinhole(1024, 768, 15.3)
+    s = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), fov_error_deg=0.6)
+    for _ in range(5):
+        xy, q = sky_frame(cat, true_cam, rng, sigma_px=0.2)
+        sol = s.solve(xy)
+        assert sol.ok and attitude_error_deg(sol, q) < 0.02
+        assert sol.camera.fov_x_deg == pytest.approx(15.3, abs=0.02)
+
+
+def test_faithful_mode_and_bands_agree_with_the_fast_path(cat):
+    cam = starid.Camera.renken()
+    small = cat.brightest(1370)
+    fast = starid.Solver(small, cam, tolerance_deg=0.1)
+    banded = starid.Solver(small, cam, tolerance_deg=0.1, n_bands=8)
+    rng = np.random.default_rng(17)
+    for _ in range(5):
+        xy, q = sky_frame(small, cam, rng, sigma_px=0.2, mag_noise=0.0)
+        a, b = fast.solve(xy), banded.solve(xy)
+        assert a.ok == b.ok and a.matching_counter == b.matching_counter
+        if a.ok:
+            assert a.matches == b.matches
