@@ -36,6 +36,23 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true", help="print JSON instead of a table")
     d.set_defaults(func=cmd_detect)
 
+    s = sub.add_parser("solve", help="identify the stars of an image: attitude, lost in space")
+    s.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
+    s.add_argument("--example", action="store_true",
+                   help="render and solve the built-in synthetic example frame")
+    s.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
+    s.add_argument("--fov-error", type=float, default=0.0,
+                   help="± uncertainty of --fov, degrees (default 0: known)")
+    s.add_argument("--mag-limit", type=float, default=6.5,
+                   help="catalogue limit, estimated Johnson V (default 6.5)")
+    s.add_argument("--epoch", type=float, default=None,
+                   help="observation epoch, Julian year (default: now)")
+    s.add_argument("--method", choices=["nstar", "triad"], default="nstar")
+    s.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
+    s.add_argument("--overlay", metavar="PNG", help="write an overlay image for checking")
+    s.add_argument("--json", action="store_true", help="print JSON instead of text")
+    s.set_defaults(func=cmd_solve)
+
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
     c.set_defaults(func=cmd_catalog)
@@ -50,6 +67,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, FileNotFoundError) as e:
         print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # output piped into `head`: not an error
+        sys.stderr.close()
+        return 0
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
@@ -96,6 +116,104 @@ def cmd_detect(args: argparse.Namespace) -> int:
     for i, s in enumerate(out["stars"]):
         print(f"{i:>3} {s['x']:>9.2f} {s['y']:>9.2f} {s['flux']:>10.1f}")
     return 0
+
+
+def cmd_solve(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    import starid
+    from starid.detect import read_image
+
+    if args.example == bool(args.image):
+        raise ValueError("give an IMAGE or --example (one of them)")
+    epoch = args.epoch if args.epoch is not None else _julian_year_now()
+    truth_q = None
+    if args.example:
+        ex = examples.example_frame()
+        image, camera, truth_q = ex.image, ex.camera, ex.q_cam_icrs
+        print(f"example: {ex.description}", file=sys.stderr)
+    else:
+        if args.fov is None:
+            raise ValueError("--fov (horizontal field of view estimate, degrees) is required")
+        image = read_image(args.image)
+        h, w = image.shape[:2]
+        camera = starid.Camera.pinhole(w, h, args.fov)
+    t0 = time.perf_counter()
+    det = starid.detect(image, camera, sigma=args.sigma)
+    t_detect = time.perf_counter() - t0
+    cat = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
+    solver = starid.Solver(cat, camera, fov_error_deg=args.fov_error, method=args.method)
+    sol = solver.solve(det)
+    out = solution_record(sol, cat)
+    out["detections"] = len(det)
+    out["detect_ms"] = round(t_detect * 1e3, 2)
+    if truth_q is not None and sol.ok:
+        err = np.degrees(starid.rotations.angle_between(sol.q_cam_icrs, truth_q)) * 3600
+        out["error_vs_truth_arcsec"] = round(float(err), 2)
+    if args.overlay:
+        import cv2
+
+        from adfusion.overlay import draw_solution
+
+        if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
+            raise ValueError(f"could not write the overlay to {args.overlay}")
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0 if sol.ok else 1
+    print(f"{len(det)} stars detected in {out['detect_ms']} ms; identification "
+          f"{'ok' if sol.ok else 'NOT ok'} in {out['time_ms']} ms ({out['path'] or '-'})")
+    if not sol.ok:
+        print(f"reason: {sol.reason}")
+        return 1
+    print(f"boresight RA {out['ra_deg']:.5f}°  Dec {out['dec_deg']:+.5f}°  roll "
+          f"{out['roll_deg']:.4f}°   (1σ {out['sigma_arcsec'][0]:.1f}″ / "
+          f"{out['sigma_arcsec'][1]:.1f}″ / {out['sigma_arcsec'][2]:.1f}″ about x/y/z)")
+    print(f"FOV {out['fov_x_deg']:.4f}°, {len(sol.matches)} stars matched, RMS residual "
+          f"{out['rms_residual_arcsec']:.1f}″, false-match probability {sol.p_false:.1e}")
+    if "error_vs_truth_arcsec" in out:
+        print(f"error against the rendered truth: {out['error_vs_truth_arcsec']}″")
+    print(f"{'det':>4} {'id':>8} {'residual″':>10}")
+    for m in out["matches"]:
+        print(f"{m['detection']:>4} {m['id']:>8} {m['residual_arcsec']:>10.2f}")
+    return 0
+
+
+def solution_record(sol, cat=None) -> dict:
+    """JSON-ready summary of a :class:`starid.Solution` (the CLI's and the logs' format)."""
+    import numpy as np
+
+    rec: dict = {
+        "ok": sol.ok, "reason": sol.reason, "mode": sol.mode, "path": sol.path,
+        "matching_counter": sol.matching_counter, "time_ms": round(sol.time_s * 1e3, 3),
+        "p_false": sol.p_false, "patterns_tried": sol.patterns_tried,
+    }
+    if sol.ok:
+        ra, dec, roll = sol.ra_dec_roll_deg
+        rec.update(
+            ra_deg=ra, dec_deg=dec, roll_deg=roll,
+            q_cam_icrs=[float(x) for x in sol.q_cam_icrs],
+            sigma_arcsec=[float(np.degrees(np.sqrt(v)) * 3600)
+                          for v in np.diag(sol.covariance)],
+            covariance_rad2=np.asarray(sol.covariance).tolist(),
+            fov_x_deg=sol.camera.fov_x_deg,
+            rms_residual_arcsec=sol.rms_residual_arcsec,
+            matches=[{"detection": d, "id": i,
+                      "residual_arcsec": float(np.degrees(r) * 3600)}
+                     for (d, i), r in zip(sol.matches, sol.residuals_rad, strict=True)],
+        )
+    else:
+        rec["candidates"] = [
+            {"ra_dec_roll_deg": list(c.radec_roll_deg), "p_false": c.p_false,
+             "n_matches": len(c.matches)} for c in sol.candidates]
+    return rec
+
+
+def _julian_year_now() -> float:
+    import datetime as dt
+
+    now = dt.datetime.now(dt.UTC)
+    j2000 = dt.datetime(2000, 1, 1, 12, tzinfo=dt.UTC)
+    return 2000.0 + (now - j2000).total_seconds() / (365.25 * 86400)
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:

@@ -14,9 +14,9 @@ from starid.detect import Detections, detect
 from starid.solver import Candidate, Prior, Solution, Solver
 
 __all__ = [
+    "Camera",
     "Candidate",
     "Catalog",
-    "Camera",
     "Detections",
     "Prior",
     "Solution",

@@ -559,7 +559,8 @@ def detect(
         saturation: pixel value at which the sensor saturates; blobs reaching it are rejected
             ("saturated": flux and centroid are unreliable). None (default) keeps them.
         threshold: a fixed absolute threshold instead of ``sigma``: no background is estimated
-            or subtracted, flux is the raw grey-value sum (Renken's segmentation).
+            or subtracted, flux and peak are raw grey values (Renken's segmentation); weighted
+            centroids weigh each pixel by its excess over the threshold.
         max_sharpness: reject blobs whose peak sharpness ``(peak - mean of its 8 neighbours) /
             peak`` exceeds this: hot pixels and cosmic rays (≈1), not stars (≈0.3-0.85 even
             undersampled). None = off (for 1-pixel stars, e.g. binary images).
@@ -640,6 +641,7 @@ def detect(
     del mask
     return _measure(
         img, bg, idx, n_blobs, lab, background_level, noise_sigma,
+        pedestal=0.0 if threshold is None else float(threshold),
         min_area=min_area, max_area=max_area, max_elongation=max_elongation,
         centroid=centroid, max_detections=max_detections, saturation=saturation,
         max_sharpness=max_sharpness,
@@ -691,6 +693,7 @@ def _measure(
     background_level: float,
     noise_sigma: float,
     *,
+    pedestal: float,
     min_area: int,
     max_area: int,
     max_elongation: float | None,
@@ -699,7 +702,12 @@ def _measure(
     saturation: float | None,
     max_sharpness: float | None,
 ) -> Detections:
-    """Measure, filter and sort the n blobs (bright pixels idx, labels lab in 0..n-1)."""
+    """Measure, filter and sort the n blobs (bright pixels idx, labels lab in 0..n-1).
+
+    Centroid and moment weights are the values above ``pedestal``: the background (0 after
+    subtraction), or a fixed threshold, for want of a background — then the sky level does not
+    drag centroids to the blob's middle, and a binary image gets plain means.
+    """
     shape = (int(img.shape[0]), int(img.shape[1]))
     ys, xs = np.divmod(idx, shape[1])
     raw = img.ravel()[idx].astype(np.float64)
@@ -710,16 +718,16 @@ def _measure(
     peak = np.full(n, -np.inf)
     np.maximum.at(peak, lab, val)
     at_peak = np.flatnonzero(val == peak[lab])
-    ipk = np.empty(n, np.intp)
-    ipk[lab[at_peak]] = at_peak
+    ipk = np.zeros(n, np.intp)
+    np.maximum.at(ipk, lab[at_peak], at_peak)  # idx is in scan order
     px, py = xs[ipk], ys[ipk]
     flux = np.bincount(lab, val, n)
 
     # Intensity-weighted second moments about the peak pixel (small numbers: no cancellation)
-    # for the elongation test; negative residuals (possible with a fixed threshold) weigh 0.
+    # for the elongation test.
     dx = (xs - px[lab]).astype(np.float64)
     dy = (ys - py[lab]).astype(np.float64)
-    wpos = np.maximum(val, 0.0)
+    wpos = np.maximum(val - pedestal, 0.0)
     sw = np.bincount(lab, wpos, n)
     sw = np.where(sw > 0, sw, 1.0)
     mx = np.bincount(lab, wpos * dx, n) / sw
@@ -734,7 +742,7 @@ def _measure(
         # Renken keeps one decimal; round half up (Pascal's Round, positive values).
         cx, cy = np.floor(cx * 10 + 0.5) / 10, np.floor(cy * 10 + 0.5) / 10
     else:
-        cx, cy = _ring_centroid(img, bg, idx, xs, ys, lab, wpos, px, py, n)
+        cx, cy = _ring_centroid(img, bg, idx, xs, ys, lab, wpos, px, py, n, pedestal)
 
     # ---- filters; the first matching reason wins ----
     reason = np.full(n, "", dtype=object)
@@ -815,9 +823,10 @@ def _ring_centroid(
     px: np.ndarray,
     py: np.ndarray,
     n: int,
+    pedestal: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Intensity-weighted centroid over each blob plus the ring of its 8-neighbours below
-    threshold; weights are background-subtracted values clipped at 0.
+    threshold; weights are background-subtracted values (less ``pedestal``) clipped at 0.
 
     Why the ring: the threshold cuts the PSF wings, which pulls a blob-only centroid towards
     its peak pixel (pixel locking). On pixel-integrated Gaussian stars (PSF sigma 0.7-2 px) the
@@ -844,11 +853,11 @@ def _ring_centroid(
     nl = key[first] & ((1 << bits) - 1)
     ry, rx = np.divmod(pix[first], w)
     all_lab = np.concatenate([lab, nl])
-    all_w = np.concatenate([wpos, np.maximum(_residual_at(img, bg, rx, ry), 0.0)])
+    all_w = np.concatenate([wpos, np.maximum(_residual_at(img, bg, rx, ry) - pedestal, 0.0)])
     dx = np.concatenate([xs, rx]) - px[all_lab]
     dy = np.concatenate([ys, ry]) - py[all_lab]
     s = np.bincount(all_lab, all_w, n)
-    s = np.where(s > 0, s, 1.0)  # all weights 0 (fixed threshold, values <= 0): peak pixel
+    s = np.where(s > 0, s, 1.0)  # all weights 0 (cannot happen above threshold): peak pixel
     cx = px + np.bincount(all_lab, all_w * dx, n) / s
     cy = py + np.bincount(all_lab, all_w * dy, n) / s
     return cx, cy

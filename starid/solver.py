@@ -166,7 +166,14 @@ class Solver:
         max_patterns: int = 200,
         work_budget: int = 200_000,
         cache: bool = True,
+        method: str = "nstar",
+        triad_params=None,
     ) -> None:
+        if method not in ("nstar", "triad"):
+            raise ValueError(f"method must be 'nstar' or 'triad', got {method!r}")
+        self.method = method
+        self.triad_params = triad_params
+        self._triad_db = None
         if not 2 <= n_min <= n_max <= 8:
             raise ValueError(f"need 2 ≤ n_min ≤ n_max ≤ 8, got {n_min}, {n_max}")
         if centroid_sigma_px <= 0 or not np.isfinite(centroid_sigma_px):
@@ -220,6 +227,10 @@ class Solver:
         if problem:
             return Solution(False, problem, time_s=time.perf_counter() - t0,
                             n_detections=len(xy))
+        if self.method == "triad":
+            sol = self._solve_triad(xy)
+            return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
+                            patterns_tried=1)
         best: Solution | None = None
         trials = 0
         for scale in self._focal_scales():
@@ -378,6 +389,51 @@ class Solver:
                 reason = (f"insufficient evidence: best candidate p_false {best_quick:.2g}"
                           f" > {self.p_false_max:.0e}")
         return Solution(False, reason, matching_counter=first_counter or 0), tried
+
+    def _solve_triad(self, xy: NDArray) -> Solution:
+        """Yee's triad method (:mod:`starid.triad`), then our verification: Yee's voting
+        can accept a false 3-star match (a mirror image, a close double), so the result
+        must also pass the false-match probability test like any n-star candidate."""
+        from starid.triad import SeparationDatabase, TriadParams, identify_triads
+
+        params = self.triad_params or TriadParams()
+        if self._triad_db is None:
+            self._triad_db = SeparationDatabase.build(
+                self.catalog, self.camera.diagonal_fov_deg + params.tol_sep_deg)
+        res = identify_triads(xy, self.camera, self.catalog, params, self._triad_db)
+        if not res.ok:
+            return Solution(False, f"triad: {res.reason}", path="triad")
+        pos = {int(h): k for k, h in enumerate(self.ids)}
+        pairs = sorted({(int(d), pos[int(h)]) for d, h in res.matches})
+        used_cat: set[int] = set()
+        sel_l, assign_l = [], []
+        for d, c in pairs:  # a resolved double maps twice onto a merged star: keep one
+            if c not in used_cat:
+                used_cat.add(c)
+                sel_l.append(d)
+                assign_l.append(c)
+        if len(sel_l) < 3:
+            return Solution(False, "triad: fewer than 3 distinct matched stars", path="triad")
+        sel, assign = np.array(sel_l), np.array(assign_l)
+        b_all = self.camera.pixels_to_vectors(xy)
+        b = b_all[sel]
+        ang = np.arccos(np.clip(b @ b.T, -1, 1))
+        np.fill_diagonal(ang, 0.0)
+        n_img = min(len(xy), params.max_stars)
+        trials = max(1, n_img * (n_img - 1) * (n_img - 2) // 6)  # every image triangle
+        e_trials = trials * expected_chance_patterns(
+            ang, np.radians(params.tol_sep_deg), len(self.vectors), mirror_checked=True)
+        quick = self._quick_check(b_all, sel, assign, self.camera, e_trials)
+        if quick is None:
+            return Solution(False, "triad: match not confirmed by the projected catalogue",
+                            path="triad")
+        if quick[0] > self.p_false_max:
+            return Solution(False, f"insufficient evidence: triad match p_false "
+                                   f"{quick[0]:.2g} > {self.p_false_max:.0e}", path="triad")
+        cand = self._verify(xy, self.camera, sel, assign, quick[1], e_trials)
+        if cand is None or cand.p_false > self.p_false_max:
+            return Solution(False, "triad: match failed full verification", path="triad")
+        return self._solution(cand, 1, "triad", [cand])
 
     def _match_radius_px(self) -> float:
         return max(3.0 * np.sqrt(2.0) * self.centroid_sigma_px, 1.5)

@@ -108,6 +108,18 @@ def test_weighted_centroid_of_a_symmetric_blob_is_its_centre():
     np.testing.assert_allclose(det.xy, [[20.0, 11.0]], atol=1e-12)
 
 
+def test_fixed_threshold_centroids_ignore_the_sky_level():
+    # No background is estimated with a fixed threshold; the weights are the excess over it,
+    # so a sky pedestal does not pull the centroid to the middle of the blob's pixels.
+    truth = np.array([[20.35, 15.8], [40.6, 30.25]])
+    img, _ = render((48, 64), np.column_stack([truth, [20000.0, 20000.0]]), background=500.0,
+                    noise=1.0, seed=4)
+    det = detect(img, threshold=600.0)
+    assert len(det) == 2
+    _, off, _ = match(det.xy, truth)
+    assert np.abs(off).max() < 0.03
+
+
 def test_flip_maps_x_to_width_minus_one_minus_x():
     rng = np.random.default_rng(3)
     shape = (128, 160)

@@ -68,3 +68,48 @@ def test_detect_file_and_array_agree(frames):
     assert img.dtype == np.uint16 and img.shape == (768, 1024)
     a, b = starid.detect(img), starid.detect(f.path)
     np.testing.assert_array_equal(a.xy, b.xy)
+
+
+@pytest.fixture(scope="module")
+def real_solver():
+    cat = starid.Catalog.hipparcos(mag_limit=6.5, epoch=OBS_EPOCH)
+    return starid.Solver(cat, starid.Camera.pinhole(1024, 768, 11.4), fov_error_deg=0.5)
+
+
+@pytest.mark.opencv
+def test_lost_in_space_on_real_frames_matches_astrometry_net(frames, real_solver):
+    """Issue acceptance: every frame identified from the image file and a FOV estimate of
+    11.4° ± 0.5°; every grid point within 0.02° of the reference, the centre within 0.01°."""
+    for f in frames:
+        sol = real_solver.solve(starid.detect(f.path))
+        assert sol.ok, (f.name, sol.reason)
+        assert sol.p_false < 1e-6
+        errs = grid_errors_deg(f, sol.camera, sol.q_cam_icrs)
+        assert errs.max() < 0.02, (f.name, errs)
+        assert errs[4] < 0.01, (f.name, errs[4])  # the grid's middle point is the centre
+        assert sol.camera.fov_x_deg == pytest.approx(f.fit.camera.fov_x_deg, abs=0.01)
+
+
+@pytest.mark.opencv
+def test_cli_solve_on_a_real_frame(frames, tmp_path, capsys):
+    import json
+
+    from adfusion.cli import main
+
+    f = frames[2]
+    out = tmp_path / "overlay.png"
+    assert main(["solve", str(f.path), "--fov", "11.4", "--fov-error", "0.5", "--json",
+                 "--overlay", str(out)]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["ok"] and len(res["matches"]) >= 10
+    ra, dec = res["ra_deg"], res["dec_deg"]
+    import numpy as np
+
+    from starid import rotations as rot
+    centre = rot.radec_to_vector(np.radians(ra), np.radians(dec))
+    # the boresight is the principal point, the image centre: compare with grid point 4
+    assert np.degrees(np.arccos(np.clip(centre @ f.grid_icrs[4], -1, 1))) < 0.01
+    import cv2
+
+    img = cv2.imread(str(out))
+    assert img is not None and img.shape == (768, 1024, 3)

@@ -3,6 +3,8 @@ synthetic Cassiopeia (Tab. 6.3/6.4), affine attitude. Numbers from shared/seeds/
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -51,7 +53,7 @@ def test_ac12_cosine_windows_are_clamped_and_strict():
 
 def test_ac04_ac05_constants():
     assert np.degrees(np.arctan(0.023 / 25.84)) == pytest.approx(0.0510, abs=1e-4)
-    assert [len(list(__import__("itertools").combinations(range(n), 2))) for n in range(2, 7)] \
+    assert [len(list(itertools.combinations(range(n), 2))) for n in range(2, 7)] \
         == [1, 3, 6, 10, 15]
 
 
@@ -75,7 +77,7 @@ def band_masks(v: np.ndarray, n_bands: int, overlap: float) -> list[np.ndarray]:
     dec = np.arcsin(np.clip(v[:, 2], -1, 1))
     edges = np.arcsin(np.linspace(1, -1, n_bands + 1))
     return [(dec <= hi + overlap) & (dec >= lo - overlap)
-            for hi, lo in zip(edges[:-1], edges[1:], strict=True)]
+            for hi, lo in itertools.pairwise(edges)]
 
 
 @settings(max_examples=40, deadline=None)
