@@ -314,3 +314,18 @@ def test_eq_8_1_overweights_high_declinations():
     assert frac == pytest.approx(0.216, abs=0.005)  # renken.md §8.1: 21.6 % vs 13.4 %
     uni = eq_8_1_attitudes(np.random.default_rng(0), 200_000, uniform=True)
     assert np.mean(np.abs(np.degrees(uni[:, 1])) > 60) == pytest.approx(0.134, abs=0.005)
+
+
+# --- §8 simulation (reduced; the full grid is benchmarks/renken_simulation.py) ------------
+
+
+@pytest.mark.parametrize(
+    "mag, tol, published, bound",
+    [(5.4, 0.1, 99.7, 3.0), (6.0, 0.2, 91.9, 5.0), (4.0, 0.1, 44.2, 8.0)],
+)
+def test_simulation_eta_matches_tab_8_22_to_8_28(mag, tol, published, bound):
+    from starid.renken import renken_catalog, simulate_cell
+
+    cell = simulate_cell(renken_catalog(mag), mag, tol, 300, seed=42)
+    assert abs(cell.eta - published) <= bound, cell
+    assert cell.wrong_unique == 0 or mag < 5.4  # AC-24: no miss-matches from 5.4 on
