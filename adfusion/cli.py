@@ -53,6 +53,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=cmd_solve)
 
+    b = sub.add_parser("bench", help="benchmarks against the peers (tetra3rs, cedar-solve)")
+    bsub = b.add_subparsers(dest="bench", metavar="BENCH", required=True)
+    bs = bsub.add_parser("starid", help="lost-in-space identification: ours vs the peers")
+    from adfusion import bench_starid
+
+    bench_starid.add_arguments(bs)
+    bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
+
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
     c.set_defaults(func=cmd_catalog)
@@ -214,6 +222,11 @@ def _julian_year_now() -> float:
     now = dt.datetime.now(dt.UTC)
     j2000 = dt.datetime(2000, 1, 1, 12, tzinfo=dt.UTC)
     return 2000.0 + (now - j2000).total_seconds() / (365.25 * 86400)
+
+
+def _run_bench(module, args: argparse.Namespace) -> int:
+    module.run(args)
+    return 0
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:

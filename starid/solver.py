@@ -231,20 +231,11 @@ class Solver:
             sol = self._solve_triad(xy)
             return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                             patterns_tried=1)
-        best: Solution | None = None
-        trials = 0
-        for scale in self._focal_scales():
-            cam = self.camera.scaled(scale) if scale != 1.0 else self.camera
-            sol, tried = self._solve_at(xy, cam, trials, scale)
-            trials += tried
-            if sol.ok or sol.reason.startswith("ambiguous"):
-                best = sol
-                break
-            if best is None or sol.matching_counter > best.matching_counter:
-                best = sol
-        assert best is not None
-        return _replace(best, time_s=time.perf_counter() - t0, n_detections=len(xy),
-                        patterns_tried=trials)
+        cams = [self.camera.scaled(k) if k != 1.0 else self.camera
+                for k in self._focal_scales()]
+        sol, tried = self._solve_at(xy, cams)
+        return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
+                        patterns_tried=tried)
 
     # --- internals ----------------------------------------------------------------------
 
@@ -333,61 +324,74 @@ class Solver:
                     if fresh(pat):
                         yield pat, f"combination {list(pat)}"
 
-    def _solve_at(self, xy: NDArray, cam: Camera, trials0: int,
-                  scale: float) -> tuple[Solution, int]:
-        b_all = cam.pixels_to_vectors(xy)
+    def _solve_at(self, xy: NDArray, cams: list[Camera]) -> tuple[Solution, int]:
+        """Try patterns in order; each pattern at every focal-length guess (so the right
+        scale is found by the main pattern, not after exhausting Not-Modus at a wrong
+        one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
+        b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
         tried = 0
         first_counter = None
-        reason = "no match"
+        budget_note = ""
+        weak: list[tuple[float, NDArray, NDArray, NDArray, float, str, int]] = []
         rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
+        budget = self.max_patterns * len(cams)
         for pat_idx, path in self._patterns(len(xy)):
-            if tried >= self.max_patterns:
-                reason = f"no verified match within {self.max_patterns} patterns"
+            if tried >= budget:
+                budget_note = f"{tried} pattern trials (the budget)"
                 break
-            tried += 1
-            sel = np.array(pat_idx)
-            b = b_all[sel]
-            ang = np.arccos(np.clip(b @ b.T, -1, 1))
-            np.fill_diagonal(ang, 0.0)
-            order = closest_pair_first(ang)
-            sel, b, ang = sel[order], b[order], ang[np.ix_(order, order)]
-            tol = self.tolerance_rad + rel_tol * ang
-            pattern = _pattern(ang, b, tol)
-            try:
-                assignments = self._match(pattern)
-            except WorkBudgetExceeded as e:
-                reason = f"work budget exceeded ({e})"
-                continue
-            if first_counter is None:
-                first_counter = len(assignments)
-            if len(assignments) == 0:
-                continue
-            e_trials = expected_chance_patterns(ang, tol, len(self.vectors),
-                                                pattern.chirality != 0) * (trials0 + tried)
-            cands: list[Candidate] = []
-            best_quick = 1.0
-            for a in assignments:
-                quick = self._quick_check(b_all, sel, a, cam, e_trials)
-                if quick is None:
+            for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
+                tried += 1
+                sel = np.array(pat_idx)
+                b = b_all[sel]
+                ang = np.arccos(np.clip(b @ b.T, -1, 1))
+                np.fill_diagonal(ang, 0.0)
+                order = closest_pair_first(ang)
+                sel, b, ang = sel[order], b[order], ang[np.ix_(order, order)]
+                tol = self.tolerance_rad + rel_tol * ang
+                pattern = _pattern(ang, b, tol)
+                try:
+                    assignments = self._match(pattern)
+                except WorkBudgetExceeded as e:
+                    budget_note = f"work budget exceeded ({e})"
                     continue
-                best_quick = min(best_quick, quick[0])
-                if quick[0] <= self.p_false_max:
-                    c = self._verify(xy, cam, sel, a, quick[1], e_trials)
-                    if c is not None:
-                        cands.append(c)
-            accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
-                                 3 * self.tolerance_rad)
-            if len(accepted) == 1:
-                return self._solution(accepted[0], len(assignments), path, cands), tried
-            if len(accepted) > 1:
-                return Solution(
-                    False, f"ambiguous: {len(accepted)} distinct attitudes verified",
-                    matching_counter=len(assignments), path=path,
-                    candidates=sorted(accepted, key=lambda c: c.p_false),
-                ), tried
-            if best_quick < 1.0:
-                reason = (f"insufficient evidence: best candidate p_false {best_quick:.2g}"
-                          f" > {self.p_false_max:.0e}")
+                if first_counter is None:
+                    first_counter = len(assignments)
+                if len(assignments) == 0:
+                    continue
+                e_trials = expected_chance_patterns(ang, tol, len(self.vectors),
+                                                    pattern.chirality != 0) * tried
+                cands: list[Candidate] = []
+                for a in assignments:
+                    quick = self._quick_check(b_all, sel, a, cam, e_trials)
+                    if quick is None:
+                        continue
+                    if quick[0] <= self.p_false_max:
+                        c = self._verify(xy, cam, sel, a, quick[1], e_trials)
+                        if c is not None:
+                            cands.append(c)
+                    else:
+                        weak.append((quick[0], sel, a, quick[1], e_trials, path, ci))
+                accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
+                                     3 * self.tolerance_rad)
+                if len(accepted) == 1:
+                    return self._solution(accepted[0], len(assignments), path, cands), tried
+                if len(accepted) > 1:
+                    return Solution(
+                        False, f"ambiguous: {len(accepted)} distinct attitudes verified",
+                        matching_counter=len(assignments), path=path,
+                        candidates=sorted(accepted, key=lambda c: c.p_false),
+                    ), tried
+        if weak:
+            # nothing convincing: show the best few for an operator (or a filter's prior)
+            weak.sort(key=lambda w: w[0])
+            shown = [c for w in weak[:3]
+                     if (c := self._verify(xy, cams[w[6]], w[1], w[2], w[3], w[4])) is not None]
+            reason = (f"ambiguous: weak evidence, the best candidate has p_false "
+                      f"{weak[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
+            return Solution(False, reason, matching_counter=first_counter or 0,
+                            path=weak[0][5], candidates=_distinct(shown, 3 * self.tolerance_rad)
+                            ), tried
+        reason = f"no match: {budget_note or f'{tried} patterns tried'}"
         return Solution(False, reason, matching_counter=first_counter or 0), tried
 
     def _solve_triad(self, xy: NDArray) -> Solution:

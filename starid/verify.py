@@ -53,10 +53,13 @@ def expected_chance_patterns(
     """Expected number of catalogue n-star patterns matching ``angles`` by chance.
 
     Star 1 may be any of N stars; star 2 lies in an annulus of width 2·tol around it
-    (area 2π sin d₁₂ · 2tol); every further star must lie where the annuli around stars
-    1 and 2 cross: two spots of area (2tol)² / sin γ (γ the crossing angle), one of them
-    when the mirror check or a fourth distance picks the side. Densities are per
-    steradian, doubled for safety (:data:`DENSITY_SAFETY`).
+    (area 2π sin d₁₂ · 2tol); every further star must lie where the annuli around two
+    already placed stars cross: two spots of area (2tol)² / sin γ (γ the crossing angle),
+    one of them when the mirror check or a third placed star picks the side. The pair of
+    placed stars crossing most steeply is used — with the closest pair first, the first
+    two stars alone pin a far star only loosely, the others pin it well. Further
+    distances are not credited (they tighten the spot further, so this stays an upper
+    estimate). Densities are per steradian, doubled for safety (:data:`DENSITY_SAFETY`).
     """
     a = np.asarray(angles, dtype=np.float64)
     n = len(a)
@@ -65,9 +68,18 @@ def expected_chance_patterns(
     e = float(n_catalog) * rho * 2.0 * np.pi * max(np.sin(a[0, 1]), 1e-6) * w[0, 1]
     e *= 2.0  # either image star of the first pair may be either catalogue star
     for m in range(2, n):
-        gamma = _crossing_angle(a[0, 1], a[0, m], a[1, m])
+        best = 0.0
+        area = np.inf
+        for s in range(m):
+            for t in range(s + 1, m):
+                sg = np.sin(_crossing_angle(a[s, t], a[s, m], a[t, m]))
+                if sg > best:
+                    best = sg
+                    area = w[s, m] * w[t, m] / max(sg, 0.05)
+        if not np.isfinite(area):
+            area = w[0, m] * w[1, m] / 0.05
         spots = 1.0 if (m >= 3 or mirror_checked) else 2.0
-        e *= rho * spots * w[0, m] * w[1, m] / max(np.sin(gamma), 0.05)
+        e *= rho * spots * area
     return e
 
 

@@ -175,3 +175,37 @@ def test_faithful_mode_and_bands_agree_with_the_fast_path(cat):
         assert a.ok == b.ok and a.matching_counter == b.matching_counter
         if a.ok:
             assert a.matches == b.matches
+
+
+def test_three_star_frame_is_honestly_ambiguous_with_the_truth_among_candidates(cat, cam):
+    # a sparse field: three stars and nothing else to confirm them. A unique geometric
+    # match among 5000 stars is then not proof; the solver must say so and show it
+    rng = np.random.default_rng(31)
+    s = starid.Solver(cat, cam)
+    seen_truth = 0
+    for _ in range(10):
+        xy, q = sky_frame(cat, cam, rng, sigma_px=0.1)
+        sol = s.solve(xy[:3])
+        assert not sol.ok or attitude_error_deg(sol, q) < 0.05
+        if not sol.ok:
+            assert sol.reason.startswith(("ambiguous", "no match")), sol.reason
+            seen_truth += any(attitude_error_deg(c, q) < 0.05 for c in sol.candidates)
+            assert all(c.p_false > s.p_false_max for c in sol.candidates)
+    assert seen_truth >= 5
+
+
+def test_six_star_pattern_alone_is_enough_evidence(cam):
+    # renken.md: n = 6 makes even a 4480-star catalogue unique; with no further stars to
+    # check, the pattern's own improbability must carry the identification
+    cat = starid.Catalog.hipparcos(mag_limit=5.0, epoch=2025.0)
+    s = starid.Solver(cat, cam)
+    rng = np.random.default_rng(8)
+    solved = 0
+    for _ in range(15):
+        xy, q = sky_frame(cat, cam, rng, sigma_px=0.1)
+        if len(xy) < 6:
+            continue
+        sol = s.solve(xy[:6])
+        assert not sol.ok or attitude_error_deg(sol, q) < 0.05
+        solved += sol.ok
+    assert solved >= 8

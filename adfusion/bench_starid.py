@@ -1,0 +1,1102 @@
+"""``adfusion bench starid``: lost-in-space identification benchmark against peer solvers.
+
+Random attitudes (seeded) give synthetic centroid lists; our solver (:class:`starid.solver.
+Solver`) and the peers — ``tetra3rs`` (Rust, PyPI, the ``bench`` extra) and ``cedar-solve``
+(Python, pins numpy<2, so it runs in its own venv behind a JSON-lines subprocess worker) — see
+the **same** centroid lists in the same run. Per condition and solver it reports the figures
+the star-tracker literature uses (DESIGN.md "Benchmarks"):
+
+* **availability** — % of frames with a *correct* attitude accepted. Correct means: no point
+  of the frame (corners, centre) lands more than ``max(tol_px, tol_sigma·σ)`` (default
+  max(5 px, 4σ); 5 px ≈ 0.07°) from where the true attitude puts it (:func:`frame_error_px`).
+  A fixed angle such as 0.1° does not work: at σ = 2 px the roll of a correct solution is
+  often 0.1–0.27° off (a 2–4.7 px shift at the corners, the same for all three solvers),
+  while a misidentification moves the frame by tens of pixels or more. The JSON records, per
+  solver, the largest error of a correct and the smallest of a wrong solution (px and
+  degrees) so the gap can be checked;
+* **error rate** — % of frames where a *wrong* attitude was accepted, with its one-sided 95 %
+  Clopper–Pearson upper bound (``1 − 0.05^(1/n)`` for 0 errors);
+* **time per solve** — median, p95, max in ms, over all frames (failures included), measured
+  with ``perf_counter`` around the solve call *inside* the solver's process (for cedar: in the
+  worker, so the pipe is excluded), and the ratio of our median to each peer's.
+
+Frames (:func:`make_frame`): a uniformly random attitude; the catalogue stars brighter than
+the visible limit (Hipparcos, estimated V) projected through an ideal pinhole; Gaussian
+centroid noise (per axis); each star dropped with probability ``drop_frac``; ``n_false``
+false stars placed uniformly in the frame with magnitudes drawn from the catalogue's own
+magnitude distribution; the list ordered by magnitude plus ``mag_noise`` (Gaussian), brightest
+first. The attitude of frame *i* depends only on ``(seed, i)``, so every condition sees the
+same sky; the perturbations depend on ``(seed, i, condition)``. Any frame can be rebuilt with
+:func:`make_frame` from the seed, the index and the condition.
+
+Solver set-up (one configuration per condition, as a user would configure a camera):
+
+* ours — ``Solver(Catalog.hipparcos(mag_limit), camera, centroid_sigma_px=max(0.5, σ))``;
+  the catalogue is the simulator's own (the peers use their bundled catalogues, so ours has
+  no catalogue mismatch to absorb);
+* tetra3rs — a database from its bundled Gaia DR3 catalogue (``generate_from_gaia``,
+  ``max_fov_deg`` = the camera's horizontal FOV, single scale, ``star_max_magnitude`` =
+  visible limit + 0.5 in G), cached under the cache directory; solved with the camera's FOV
+  (``fov_estimate_deg``, image size, ``fov_max_error_deg``) and ``match_max_error`` scaled
+  with the centroid noise (:func:`peer_match_max_error`). Centroids are (x, y) relative to the
+  geometric image centre (ours minus ``((W−1)/2, (H−1)/2)``); its ``quaternion`` is already
+  ``q_cam_icrs`` (ICRS → camera, +z boresight, +x right, +y down) — both checked at start-up
+  on noise-free frames (``conversion_check`` in the JSON: a ½-px centre slip alone would
+  show as ≈ 37″);
+* cedar-solve — its bundled ``default_database`` (Hipparcos, FOV 10–30°, to mag 8; it cannot
+  build another without the ``hip_main.dat`` file it does not ship); centroids are (y, x)
+  from the top-left *corner* (ours + 0.5); the attitude is rebuilt from its RA, Dec and Roll
+  with ``roll_ours = −Roll`` (also checked at start-up).
+
+Both peers get ``fov_max_error`` 0.5° (they fit the focal length; ours is told it exactly) and
+a solve timeout of ``peer_timeout_ms`` (default 5 s, their default). Every solver is told the
+condition's centroid σ (ours through ``centroid_sigma_px``, the peers through
+``match_max_error``). All three solve single-threaded (CPU time ≈ wall time).
+
+Example:
+    >>> import argparse
+    >>> from adfusion import bench_starid
+    >>> p = argparse.ArgumentParser()
+    >>> bench_starid.add_arguments(p)
+    >>> args = p.parse_args(["--frames", "3", "--conditions", "clean", "--solvers", "ours",
+    ...                      "--no-progress"])
+    >>> res = bench_starid.run_benchmark(bench_starid.config_from_args(args))
+    >>> res["conditions"][0]["results"]["ours"]["n_frames"]
+    3
+    >>> round(bench_starid.clopper_pearson_upper(0, 200), 5)
+    0.01487
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import textwrap
+import time
+import zlib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "CONDITIONS",
+    "SOLVER_NAMES",
+    "BenchConfig",
+    "Condition",
+    "Frame",
+    "add_arguments",
+    "clopper_pearson_upper",
+    "config_from_args",
+    "format_table",
+    "frame_error_px",
+    "main",
+    "make_frame",
+    "peer_match_max_error",
+    "run",
+    "run_benchmark",
+]
+
+SOLVER_NAMES = ("ours", "tetra3rs", "cedar")
+_CHECK_LIMIT_ARCSEC = 60.0  # a convention slip (½ px, axis swap, roll sign) is ≥ 30″
+
+
+# --- conditions and frames ---------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Condition:
+    """One benchmark condition.
+
+    ``sigma_px`` and ``mag_limit`` of ``None`` mean "the run's base value" (``--sigma``,
+    ``--mag-limit``); :meth:`resolved` fills them in.
+
+    >>> Condition("x", n_false=3).resolved(0.1, 6.0).sigma_px
+    0.1
+    """
+
+    name: str
+    description: str = ""
+    n_false: int = 0
+    drop_frac: float = 0.0
+    sigma_px: float | None = None
+    mag_limit: float | None = None
+    coverage: bool = False  # report frames with ≥ 3 / ≥ 4 catalogue stars in the table
+
+    def resolved(self, sigma_px: float, mag_limit: float) -> Condition:
+        """A copy with the run's base centroid σ and visible limit where unset."""
+        return Condition(
+            self.name, self.description, self.n_false, self.drop_frac,
+            sigma_px if self.sigma_px is None else self.sigma_px,
+            mag_limit if self.mag_limit is None else self.mag_limit, self.coverage,
+        )  # fmt: skip
+
+
+#: The default conditions, by name (``--conditions`` picks a subset, in this order).
+CONDITIONS: dict[str, Condition] = {
+    c.name: c
+    for c in (
+        Condition("clean", "base centroid noise only"),
+        Condition("false3", "3 false stars", n_false=3),
+        Condition("false8", "8 false stars", n_false=8),
+        Condition("drop30_false3", "30 % of stars dropped + 3 false", n_false=3,
+                  drop_frac=0.3),
+        Condition("sparse45", "sparse field: catalogue and visible stars V < 4.5",
+                  mag_limit=4.5, coverage=True),
+        Condition("sigma1", "centroid σ = 1 px", sigma_px=1.0),
+        Condition("sigma2", "centroid σ = 2 px", sigma_px=2.0),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One synthetic frame: the truth and the centroid list every solver sees.
+
+    ``xy`` is (N, 2), brightest (observed) first, pixel centres (DESIGN.md); ``cat_ids`` holds
+    the HIP number of each row, −1 for a false star.
+    """
+
+    condition: str
+    index: int
+    q_cam_icrs: NDArray[np.float64]
+    xy: NDArray[np.float64]
+    cat_ids: NDArray[np.int64]
+    n_in_view: int  # catalogue stars in view before drops
+
+    @property
+    def n_true(self) -> int:
+        """Catalogue stars among the centroids (after drops and noise)."""
+        return int(np.count_nonzero(self.cat_ids >= 0))
+
+
+def _cond_key(name: str) -> int:
+    return zlib.crc32(name.encode())
+
+
+def random_attitude(seed: int, index: int) -> NDArray[np.float64]:
+    """Uniformly random ``q_cam_icrs`` for frame ``index`` (the same in every condition).
+
+    >>> from starid import rotations as rot
+    >>> bool(np.allclose(random_attitude(0, 5), random_attitude(0, 5)))
+    True
+    """
+    from starid import rotations as rot
+
+    rng = np.random.default_rng([seed, index])
+    return rot.normalize(rng.normal(size=4))
+
+
+def make_frame(catalog, camera, cond: Condition, seed: int, index: int,
+               mag_noise: float = 0.1) -> Frame:
+    """Build frame ``index`` of condition ``cond`` (resolved: ``sigma_px``, ``mag_limit`` set).
+
+    ``catalog`` must hold the stars visible under ``cond`` (``mag < cond.mag_limit``).
+
+    >>> import starid
+    >>> from starid.catalog import Catalog
+    >>> cat = Catalog.hipparcos(mag_limit=6.0, epoch=2025.0)
+    >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
+    >>> f = make_frame(cat, cam, CONDITIONS["false3"].resolved(0.1, 6.0), seed=0, index=7)
+    >>> int(np.count_nonzero(f.cat_ids < 0)), f.xy.shape[1]
+    (3, 2)
+    """
+    from starid import rotations as rot
+
+    q = random_attitude(seed, index)
+    rng = np.random.default_rng([seed, index, _cond_key(cond.name)])
+    v = rot.rotate(q, catalog.vectors)
+    front = np.flatnonzero(v[:, 2] > 0)
+    xy = camera.vectors_to_pixels(v[front])
+    inside = camera.in_frame(xy)
+    xy, idx = xy[inside], front[inside]
+    n_in_view = len(idx)
+    mags = np.asarray(catalog.mag, dtype=np.float64)[idx]
+    ids = np.asarray(catalog.ids, dtype=np.int64)[idx]
+    keep = rng.random(len(idx)) >= cond.drop_frac
+    xy, mags, ids = xy[keep], mags[keep], ids[keep]
+    sigma = float(cond.sigma_px or 0.0)
+    xy = xy + rng.normal(0.0, 1.0, xy.shape) * sigma
+    ok = camera.in_frame(xy)  # pushed out of the frame by the noise: not detected
+    xy, mags, ids = xy[ok], mags[ok], ids[ok]
+    if cond.n_false:
+        fx = rng.uniform(-0.5, camera.width - 0.5, cond.n_false)
+        fy = rng.uniform(-0.5, camera.height - 0.5, cond.n_false)
+        fmag = rng.choice(np.asarray(catalog.mag, dtype=np.float64), cond.n_false)
+        xy = np.vstack([xy, np.column_stack([fx, fy])])
+        mags = np.concatenate([mags, fmag])
+        ids = np.concatenate([ids, np.full(cond.n_false, -1, np.int64)])
+    observed = mags + rng.normal(0.0, 1.0, len(mags)) * mag_noise
+    order = np.argsort(observed, kind="stable")
+    return Frame(cond.name, index, q, xy[order], ids[order], n_in_view)
+
+
+# --- statistics --------------------------------------------------------------------------
+
+
+def clopper_pearson_upper(k: int, n: int, confidence: float = 0.95) -> float:
+    """One-sided Clopper–Pearson upper bound of a binomial proportion (k of n).
+
+    >>> round(clopper_pearson_upper(0, 100), 6) == round(1 - 0.05 ** (1 / 100), 6)
+    True
+    >>> clopper_pearson_upper(5, 5)
+    1.0
+    """
+    from scipy.stats import beta
+
+    if n <= 0:
+        return 1.0
+    if k >= n:
+        return 1.0
+    return float(beta.ppf(confidence, k + 1, n - k))
+
+
+def _r(fn: Any, x: NDArray[np.float64], nd: int = 3) -> float | None:
+    if len(x) == 0:
+        return None
+    v = float(fn(x))
+    return round(v, nd) if np.isfinite(v) else None
+
+
+def _pct(k: int, n: int) -> float | None:
+    return None if n == 0 else round(100.0 * k / n, 3)
+
+
+def _time_stats(t_s: Sequence[float]) -> dict[str, float | None]:
+    if len(t_s) == 0:
+        return {"median": None, "p95": None, "max": None}
+    t = np.asarray(t_s) * 1e3
+    return {"median": round(float(np.median(t)), 4), "p95": round(float(np.percentile(t, 95)), 4),
+            "max": round(float(np.max(t)), 4)}
+
+
+@dataclass
+class _Outcome:
+    ok: bool
+    q: NDArray[np.float64] | None
+    time_s: float
+    status: str = ""
+    own_time_s: float | None = None  # the solver's self-reported time, if any
+
+
+def frame_error_px(q_est: NDArray[np.float64], q_true: NDArray[np.float64], camera) -> float:
+    """Largest pixel shift of the frame's corners and centre between two attitudes.
+
+    The directions the true attitude puts at the four corners and the centre are projected
+    with the estimate; ``inf`` if one falls behind the camera.
+
+    >>> import starid
+    >>> from starid import rotations as rot
+    >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
+    >>> q = rot.q_cam_icrs_from_radec_roll(0.1, 0.2, 0.3)
+    >>> dq = rot.exp_map([0.0, 0.0, np.radians(0.1)])      # 0.1° of roll
+    >>> round(frame_error_px(rot.multiply(dq, q), q, cam), 2)
+    1.12
+    """
+    from starid import rotations as rot
+
+    xy = np.vstack([camera.corners(), [[camera.K[0, 2], camera.K[1, 2]]]])
+    v_icrs = rot.rotate(rot.inverse(q_true), camera.pixels_to_vectors(xy))
+    moved = camera.vectors_to_pixels(rot.rotate(q_est, v_icrs))
+    d = np.linalg.norm(moved - xy, axis=1)
+    return float(np.max(d)) if np.all(np.isfinite(d)) else float("inf")
+
+
+def summarize(frames: Sequence[Frame], outcomes: Sequence[_Outcome], camera, tol_px: float,
+              list_max: int = 50, per_frame: bool = False) -> dict[str, Any]:
+    """Availability, error rate (+ 95 % bound), times and the frames worth a look."""
+    from starid import rotations as rot
+
+    n = len(frames)
+    err_deg = np.full(n, np.nan)
+    err_px = np.full(n, np.nan)
+    for i, (f, o) in enumerate(zip(frames, outcomes, strict=True)):
+        if o.ok and o.q is not None:
+            err_deg[i] = float(np.degrees(rot.angle_between(o.q, f.q_cam_icrs)))
+            err_px[i] = frame_error_px(o.q, f.q_cam_icrs, camera)
+    accepted = ~np.isnan(err_px)
+    correct = accepted & (err_px < tol_px)
+    wrong = accepted & ~correct
+    n_true = np.array([f.n_true for f in frames])
+    times = [o.time_s for o in outcomes]
+    out: dict[str, Any] = {
+        "n_frames": n,
+        "n_correct": int(correct.sum()),
+        "n_wrong": int(wrong.sum()),
+        "n_failed": int((~accepted).sum()),
+        "availability_pct": _pct(int(correct.sum()), n),
+        "error_rate_pct": _pct(int(wrong.sum()), n),
+        "error_rate_upper95_pct": round(100 * clopper_pearson_upper(int(wrong.sum()), n), 3),
+        "time_ms": _time_stats(times),
+        "time_ms_correct": _time_stats([t for t, c in zip(times, correct, strict=True) if c]),
+        "median_error_correct_arcsec": _r(np.median, err_deg[correct] * 3600),
+        "max_error_correct_deg": _r(np.max, err_deg[correct], 4),
+        "max_error_correct_px": _r(np.max, err_px[correct]),
+        "min_error_wrong_deg": _r(np.min, err_deg[wrong], 4),
+        "min_error_wrong_px": _r(np.min, err_px[wrong]),
+    }
+    for k in (3, 4):
+        sel = n_true >= k
+        out[f"frames_ge{k}_stars"] = int(sel.sum())
+        out[f"availability_ge{k}_pct"] = _pct(int((correct & sel).sum()), int(sel.sum()))
+    own = [o.own_time_s for o in outcomes if o.own_time_s is not None]
+    if own:
+        out["own_reported_time_ms"] = _time_stats(own)
+    statuses: dict[str, int] = {}
+    for o in outcomes:
+        if not o.ok:
+            key = o.status.split(":")[0] or "not ok"
+            statuses[key] = statuses.get(key, 0) + 1
+    out["failure_reasons"] = dict(sorted(statuses.items(), key=lambda kv: -kv[1]))
+    out["wrong_frames"] = [
+        {"index": frames[i].index, "error_deg": round(float(err_deg[i]), 4),
+         "error_px": round(float(err_px[i]), 2) if np.isfinite(err_px[i]) else "inf",
+         "n_centroids": len(frames[i].xy), "n_true": int(n_true[i])}
+        for i in np.flatnonzero(wrong)
+    ]
+    out["failed_frames"] = [
+        {"index": frames[i].index, "status": outcomes[i].status[:120],
+         "n_centroids": len(frames[i].xy), "n_true": int(n_true[i])}
+        for i in np.flatnonzero(~accepted)[:list_max]
+    ]
+    slow = np.argsort(times)[::-1][:5]
+    out["slowest_frames"] = [{"index": frames[i].index, "time_ms": round(times[i] * 1e3, 3),
+                              "ok": bool(correct[i])} for i in slow]
+    if per_frame:
+        out["per_frame"] = {
+            "accepted": accepted.tolist(), "correct": correct.tolist(),
+            "error_px": [round(float(e), 3) if np.isfinite(e) else None for e in err_px],
+            "time_ms": [round(t * 1e3, 4) for t in times],
+            "status": [o.status[:80] for o in outcomes],
+        }  # fmt: skip
+    return out
+
+
+# --- configuration -----------------------------------------------------------------------
+
+
+@dataclass
+class BenchConfig:
+    """Everything that determines a run (recorded in the JSON)."""
+
+    frames: int = 200
+    seed: int = 0
+    width: int = 1024
+    height: int = 768
+    fov_deg: float = 15.0
+    mag_limit: float = 6.0
+    sigma_px: float = 0.1
+    mag_noise: float = 0.1
+    tol_px: float = 5.0
+    tol_sigma: float = 4.0
+    per_frame: bool = False
+    epoch: float = 2025.0
+    conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
+    solvers: list[str] = field(default_factory=lambda: list(SOLVER_NAMES))
+    peer_timeout_ms: float = 5000.0
+    cache_dir: str | None = None
+    progress: bool = True
+
+
+def peer_match_max_error(sigma_px: float, width: int) -> float | None:
+    """``match_max_error`` (edge-ratio tolerance) for the tetra3 family at centroid noise σ.
+
+    Their database defaults (tetra3rs 0.001, cedar 0.002) suit σ ≲ 0.5 px: above that,
+    patterns whose edge ratios moved by more than the tolerance are never looked up, and
+    too large a tolerance makes every lookup slow. Tuned on 30–40 frames (seed 0, 1024 px)
+    to ``5·σ/width`` (0.005 at σ = 1 px, 0.01 at 2 px): tetra3rs σ = 1: default 19/40
+    correct, 0.003 39/40, 0.005 40/40; σ = 2: default 2/40, 0.005–0.012 37–38/40; cedar
+    σ = 1: default 29/30, 0.005 30/30 (fastest); σ = 2: default 22/30, 0.008–0.012 30/30.
+    ``None`` = keep the peer's default.
+
+    >>> peer_match_max_error(0.1, 1024) is None, round(peer_match_max_error(2.0, 1024), 4)
+    (True, 0.0098)
+    """
+    if sigma_px <= 0.5:
+        return None
+    return 5.0 * sigma_px / width
+
+
+# --- solver adapters ---------------------------------------------------------------------
+
+
+class _Adapter:
+    name = ""
+
+    def setup(self, cond: Condition) -> None:
+        """Prepare for a condition (catalogue, database, parameters)."""
+
+    def solve(self, frame: Frame) -> _Outcome:
+        raise NotImplementedError
+
+    def info(self) -> dict[str, Any]:
+        return {}
+
+    def params(self) -> dict[str, Any]:
+        """The settings used for the current condition (recorded per condition)."""
+        return {}
+
+    def close(self) -> None:
+        pass
+
+
+class _Ours(_Adapter):
+    name = "ours"
+
+    def __init__(self, cfg: BenchConfig, camera) -> None:
+        self.cfg, self.camera = cfg, camera
+        self._solvers: dict[tuple[float, float], Any] = {}
+        self._builds: dict[str, dict[str, Any]] = {}
+        self.solver = None
+
+    def setup(self, cond: Condition) -> None:
+        from starid.index import PatternIndex
+        from starid.solver import Solver
+
+        sigma = max(0.5, float(cond.sigma_px or 0.0))
+        limit = self.cfg.mag_limit if cond.mag_limit is None else cond.mag_limit
+        key = (float(limit), sigma)
+        if key not in self._solvers:
+            cat = _catalog(key[0], self.cfg.epoch)
+            s = Solver(cat, self.camera, centroid_sigma_px=sigma)
+            self._solvers[key] = s
+            t0 = time.perf_counter()  # the solver may have loaded its index from the cache
+            PatternIndex.from_vectors(s.vectors, s.max_sep_rad, cache_tag=None)
+            fresh = time.perf_counter() - t0
+            self._builds[f"V<{key[0]:g}, sigma={sigma:g}px"] = {
+                "catalog_stars": len(cat), "index_build_s": round(s.index_build_s, 4),
+                "index_build_fresh_s": round(fresh, 4),
+                "index_nbytes": int(s.index.nbytes), "index_pairs": int(s.index.n_pairs)}
+        self.solver = self._solvers[key]
+        self._params = {"catalog": f"hipparcos V<{key[0]:g}", "centroid_sigma_px": sigma}
+
+    def params(self) -> dict[str, Any]:
+        return self._params
+
+    def solve(self, frame: Frame) -> _Outcome:
+        assert self.solver is not None
+        t0 = time.perf_counter()
+        try:
+            sol = self.solver.solve(frame.xy)
+        except Exception as e:  # a crash is a finding, not a reason to stop the run
+            return _Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
+        dt = time.perf_counter() - t0
+        return _Outcome(bool(sol.ok), sol.q_cam_icrs, dt, sol.reason, sol.time_s)
+
+    def info(self) -> dict[str, Any]:
+        return {"status": "ok", "indexes": self._builds}
+
+
+class _Tetra3rs(_Adapter):
+    name = "tetra3rs"
+
+    def __init__(self, cfg: BenchConfig, camera, cache: Path) -> None:
+        import tetra3rs
+
+        self.t3 = tetra3rs
+        self.cfg, self.camera, self.cache = cfg, camera, cache
+        self._dbs: dict[float, Any] = {}
+        self._db_info: dict[str, dict[str, Any]] = {}
+        self.db = None
+        self.kw: dict[str, Any] = {}
+        self.centre = np.array([(camera.width - 1) / 2, (camera.height - 1) / 2])
+
+    def _database(self, mag_limit: float):
+        if mag_limit in self._dbs:
+            return self._dbs[mag_limit]
+        from starid.cache import cache_key
+
+        params = {
+            "tetra3rs": self.t3.__version__, "max_fov_deg": round(self.camera.fov_x_deg, 6),
+            "star_max_magnitude": mag_limit + 0.5, "epoch": self.cfg.epoch,
+        }  # fmt: skip
+        path = self.cache / f"tetra3rs-db-{cache_key('tetra3rs-db', params)}.bin"
+        t0 = time.perf_counter()
+        built = not path.exists()
+        if built:
+            db = self.t3.SolverDatabase.generate_from_gaia(
+                max_fov_deg=params["max_fov_deg"],
+                star_max_magnitude=params["star_max_magnitude"],
+                epoch_proper_motion_year=self.cfg.epoch)
+            tmp = path.with_suffix(f".tmp{os.getpid()}")
+            db.save_to_file(str(tmp))
+            os.replace(tmp, path)
+        else:
+            db = self.t3.SolverDatabase.load_from_file(str(path))
+        self._db_info[f"G<{params['star_max_magnitude']:g}"] = {
+            "path": str(path), "file_bytes": path.stat().st_size,
+            "built_now": built, "build_or_load_s": round(time.perf_counter() - t0, 3),
+            "num_stars": int(db.num_stars), "num_patterns": int(db.num_patterns),
+            "params": params}
+        self._dbs[mag_limit] = db
+        return db
+
+    def setup(self, cond: Condition) -> None:
+        limit = self.cfg.mag_limit if cond.mag_limit is None else cond.mag_limit
+        self.db = self._database(float(limit))
+        self.kw = {
+            "fov_estimate_deg": self.camera.fov_x_deg, "image_width": self.camera.width,
+            "image_height": self.camera.height, "fov_max_error_deg": 0.5,
+            "solve_timeout_ms": int(self.cfg.peer_timeout_ms),
+        }  # fmt: skip
+        mme = peer_match_max_error(float(cond.sigma_px or 0.0), self.camera.width)
+        if mme is not None:
+            self.kw["match_max_error"] = mme
+
+    def to_peer(self, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Our pixel centres → tetra3rs (x, y) from the geometric image centre."""
+        return np.ascontiguousarray(xy - self.centre)
+
+    def solve(self, frame: Frame) -> _Outcome:
+        assert self.db is not None
+        c = self.to_peer(frame.xy)
+        t0 = time.perf_counter()
+        try:
+            r = self.db.solve_from_centroids(c, **self.kw)
+        except Exception as e:
+            return _Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
+        dt = time.perf_counter() - t0
+        if not r:
+            return _Outcome(False, None, dt, str(r.status), r.solve_time_ms / 1e3)
+        q = np.asarray(r.quaternion, dtype=np.float64)  # already q_cam_icrs (checked)
+        return _Outcome(True, q / np.linalg.norm(q), dt, "", r.solve_time_ms / 1e3)
+
+    def info(self) -> dict[str, Any]:
+        return {"status": "ok", "version": self.t3.__version__, "databases": self._db_info}
+
+    def params(self) -> dict[str, Any]:
+        return {"database": f"G<{self.db.parameters.get('star_max_magnitude', '?')}"
+                if self.db is not None else None, **self.kw}
+
+
+_CEDAR_WORKER = textwrap.dedent('''
+    import json, logging, sys, time
+    out = sys.stdout
+    sys.stdout = sys.stderr  # anything the library prints must not corrupt the protocol
+    lg = logging.getLogger("tetra3.Tetra3")
+    lg.addHandler(logging.NullHandler())
+    lg.setLevel(logging.WARNING)
+    lg.propagate = False
+    import numpy as np
+    import tetra3
+    from importlib.metadata import version
+    t0 = time.perf_counter()
+    t3 = tetra3.Tetra3()
+    props = {k: (v.tolist() if hasattr(v, "tolist") else v)
+             for k, v in t3.database_properties.items()}
+    out.write(json.dumps({"ready": True, "version": version("cedar-solve"),
+                          "numpy": np.__version__, "load_s": time.perf_counter() - t0,
+                          "database": props}) + "\\n")
+    out.flush()
+    for line in sys.stdin:
+        msg = json.loads(line)
+        yx = np.asarray(msg["yx"], dtype=np.float64).reshape(-1, 2)
+        t0 = time.perf_counter()
+        try:
+            r = t3.solve_from_centroids(yx, msg["size"], **msg["kw"])
+            err = ""
+        except Exception as e:
+            r, err = {"status": -1}, repr(e)
+        dt = time.perf_counter() - t0
+        res = {"id": msg["id"], "t_s": dt, "status": int(r.get("status") or -1), "error": err}
+        for k in ("RA", "Dec", "Roll", "FOV", "Prob", "Matches", "T_solve"):
+            v = r.get(k)
+            res[k] = None if v is None else float(v)
+        out.write(json.dumps(res) + "\\n")
+        out.flush()
+''')
+
+_CEDAR_STATUS = {1: "match_found", 2: "no_match", 3: "timeout", 4: "cancelled", 5: "too_few",
+                 -1: "error"}
+
+
+def ensure_cedar_venv(cache: Path, timeout_s: float = 900.0) -> Path:
+    """The Python of a venv with ``cedar-solve`` (created on first use); raises on failure.
+
+    A ``.ok`` stamp marks a complete install, so an interrupted one is redone.
+    """
+    venv = cache / "cedar-venv"
+    py = venv / "bin" / "python"
+    stamp = venv / ".ok"
+    if stamp.exists() and py.exists():
+        return py
+    if venv.exists():
+        shutil.rmtree(venv)
+    print(f"bench starid: creating the cedar-solve venv in {venv} (once) …", file=sys.stderr)
+    base = sys.executable  # the running Python: its version is known to work here
+    steps = [[base, "-m", "venv", str(venv)],
+             [str(py), "-m", "pip", "install", "--disable-pip-version-check", "-q",
+              "cedar-solve"]]
+    for cmd in steps:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+        if p.returncode != 0:
+            tail = (p.stderr or p.stdout).strip().splitlines()[-3:]
+            raise RuntimeError(f"{' '.join(cmd[:3])} … failed: {' | '.join(tail)}")
+    stamp.write_text("ok\n")
+    return py
+
+
+class _Cedar(_Adapter):
+    name = "cedar"
+
+    def __init__(self, cfg: BenchConfig, camera, cache: Path) -> None:
+        self.cfg, self.camera = cfg, camera
+        py = ensure_cedar_venv(cache)
+        self._log = tempfile.TemporaryFile(mode="w+")
+        self.proc = subprocess.Popen(
+            [str(py), "-u", "-c", _CEDAR_WORKER], stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE, stderr=self._log, text=True, bufsize=1)
+        self.hello = self._read()
+        self.kw: dict[str, Any] = {}
+        self._n = 0
+        self._dead = ""
+
+    def _read(self) -> dict[str, Any]:
+        assert self.proc.stdout is not None
+        line = self.proc.stdout.readline()
+        if not line:
+            self._log.seek(0)
+            tail = self._log.read().strip().splitlines()[-3:]
+            raise RuntimeError(f"cedar worker exited: {' | '.join(tail)}")
+        return json.loads(line)
+
+    def setup(self, cond: Condition) -> None:
+        self.kw = {"fov_estimate": self.camera.fov_x_deg, "fov_max_error": 0.5,
+                   "solve_timeout": self.cfg.peer_timeout_ms}
+        mme = peer_match_max_error(float(cond.sigma_px or 0.0), self.camera.width)
+        if mme is not None:
+            self.kw["match_max_error"] = mme
+
+    @staticmethod
+    def to_peer(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Our pixel centres → tetra3 (y, x) from the top-left corner of the image."""
+        return xy[:, ::-1] + 0.5
+
+    def solve(self, frame: Frame) -> _Outcome:
+        from starid import rotations as rot
+
+        assert self.proc.stdin is not None
+        if self._dead:
+            return _Outcome(False, None, 0.0, f"error: {self._dead}")
+        self._n += 1
+        msg = {"id": self._n, "yx": self.to_peer(frame.xy).tolist(),
+               "size": [self.camera.height, self.camera.width], "kw": self.kw}
+        try:
+            self.proc.stdin.write(json.dumps(msg) + "\n")
+            self.proc.stdin.flush()
+            r = self._read()
+        except (OSError, RuntimeError, json.JSONDecodeError) as e:
+            self._dead = f"cedar worker died: {e}"
+            return _Outcome(False, None, 0.0, f"error: {self._dead}")
+        if r.get("id") != self._n:
+            raise RuntimeError(f"cedar worker out of step: sent {self._n}, got {r.get('id')}")
+        status = _CEDAR_STATUS.get(r["status"], str(r["status"]))
+        own = None if r["T_solve"] is None else r["T_solve"] / 1e3
+        if r["status"] != 1 or r["RA"] is None:
+            return _Outcome(False, None, r["t_s"], status + (f": {r['error']}" if r["error"]
+                                                             else ""), own)
+        q = rot.q_cam_icrs_from_radec_roll(*np.radians([r["RA"], r["Dec"], -r["Roll"]]))
+        return _Outcome(True, q, r["t_s"], "", own)
+
+    def info(self) -> dict[str, Any]:
+        return {"status": "ok", "version": self.hello.get("version"),
+                "numpy": self.hello.get("numpy"), "database": self.hello.get("database"),
+                "database_load_s": round(self.hello.get("load_s", 0.0), 3),
+                "worker_error": self._dead or None}
+
+    def params(self) -> dict[str, Any]:
+        return {"database": "default_database", **self.kw}
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            if self.proc.stdin:
+                self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self._log.close()
+
+
+_CATALOGS: dict[tuple[float, float], Any] = {}
+
+
+def _catalog(mag_limit: float, epoch: float):
+    from starid.catalog import Catalog
+
+    key = (mag_limit, epoch)
+    if key not in _CATALOGS:
+        _CATALOGS[key] = Catalog.hipparcos(mag_limit=mag_limit, epoch=epoch)
+    return _CATALOGS[key]
+
+
+def _cache_root(cfg: BenchConfig) -> tuple[Path, tempfile.TemporaryDirectory | None]:
+    if cfg.cache_dir:
+        p = Path(cfg.cache_dir).expanduser()
+        p.mkdir(parents=True, exist_ok=True)
+        return p, None
+    from starid.cache import cache_dir
+
+    root = cache_dir()
+    if root is not None:
+        return root, None
+    tmp = tempfile.TemporaryDirectory(prefix="adfusion-bench-")
+    return Path(tmp.name), tmp
+
+
+# --- the run -----------------------------------------------------------------------------
+
+
+def _machine() -> dict[str, Any]:
+    cpu = platform.processor() or ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    return {"cpu": cpu, "cores": os.cpu_count(), "system": platform.platform(),
+            "python": platform.python_version(), "numpy": np.__version__}
+
+
+def _code_version() -> dict[str, Any]:
+    """Git commit of the checkout and the sha-256 of starid's sources (the tree may be dirty)."""
+    import hashlib
+
+    import starid
+
+    root = Path(starid.__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in sorted(root.glob("*.py")):
+        h.update(f.name.encode() + f.read_bytes())
+    out: dict[str, Any] = {"starid_sources_sha256": h.hexdigest()[:16], "git_commit": None,
+                           "git_dirty": None}
+    with contextlib.suppress(OSError, subprocess.SubprocessError):
+        git = ["git", "-C", str(root.parent)]
+        rev = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, timeout=5, check=False)
+        if rev.returncode == 0:
+            out["git_commit"] = rev.stdout.strip()
+            st = subprocess.run([*git, "status", "--porcelain", "--", "starid"],
+                                capture_output=True, text=True, timeout=5, check=False)
+            out["git_dirty"] = bool(st.stdout.strip())
+    return out
+
+
+def _conversion_check(adapters: Sequence[_Adapter], cfg: BenchConfig, camera,
+                      n: int = 3) -> dict[str, dict[str, Any]]:
+    """Noise-free frames at the base settings: every solver's error must be ≈ 0.
+
+    Doubles as the warm-up, so first-call costs stay out of the timings.
+    """
+    from starid import rotations as rot
+
+    cond = Condition("conversion-check", sigma_px=0.0, mag_limit=cfg.mag_limit)
+    cat = _catalog(cfg.mag_limit, cfg.epoch)
+    frames = [make_frame(cat, camera, cond, seed=cfg.seed + 10_007, index=i, mag_noise=0.0)
+              for i in range(n)]
+    out: dict[str, dict[str, Any]] = {}
+    for a in adapters:
+        a.setup(cond)
+        errs = []
+        for f in frames:
+            o = a.solve(f)
+            if o.ok and o.q is not None:
+                errs.append(float(np.degrees(rot.angle_between(o.q, f.q_cam_icrs))) * 3600)
+        worst = max(errs) if errs else None
+        out[a.name] = {"frames": n, "solved": len(errs),
+                       "max_error_arcsec": None if worst is None else round(worst, 3),
+                       "passed": worst is not None and worst < _CHECK_LIMIT_ARCSEC}
+    return out
+
+
+def _make_adapters(cfg: BenchConfig, camera, cache: Path) -> tuple[list[_Adapter],
+                                                                     dict[str, Any]]:
+    adapters: list[_Adapter] = []
+    skipped: dict[str, Any] = {}
+    for name in cfg.solvers:
+        try:
+            if name == "ours":
+                adapters.append(_Ours(cfg, camera))
+            elif name == "tetra3rs":
+                adapters.append(_Tetra3rs(cfg, camera, cache))
+            elif name == "cedar":
+                adapters.append(_Cedar(cfg, camera, cache))
+            else:
+                raise ValueError(f"unknown solver {name!r} (choose from {SOLVER_NAMES})")
+        except ImportError as e:
+            skipped[name] = {"status": "skipped", "reason": f"not importable: {e}"}
+        except (RuntimeError, OSError, subprocess.SubprocessError, json.JSONDecodeError) as e:
+            skipped[name] = {"status": "skipped", "reason": str(e)}
+    return adapters, skipped
+
+
+def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
+    """Run the benchmark and return the result document (no printing except progress).
+
+    >>> res = run_benchmark(BenchConfig(frames=2, conditions=["clean"], solvers=["ours"],
+    ...                                 progress=False))
+    >>> sorted(res)
+    ['code', 'conditions', 'config', 'conversion_check', 'machine', 'schema', 'solvers', 'wall_s']
+    """
+    from tqdm import tqdm
+
+    import starid
+
+    unknown = [c for c in cfg.conditions if c not in CONDITIONS]
+    if unknown:
+        raise ValueError(f"unknown condition(s) {unknown}; choose from {list(CONDITIONS)}")
+    if cfg.frames < 1:
+        raise ValueError("frames must be ≥ 1")
+    t_start = time.perf_counter()
+    camera = starid.Camera.pinhole(cfg.width, cfg.height, fov_x_deg=cfg.fov_deg)
+    cache, tmp = _cache_root(cfg)
+    adapters, skipped = _make_adapters(cfg, camera, cache)
+    try:
+        check = _conversion_check(adapters, cfg, camera)
+        conds = [CONDITIONS[c].resolved(cfg.sigma_px, cfg.mag_limit) for c in cfg.conditions]
+        results = []
+        bar = tqdm(total=cfg.frames * len(conds), file=sys.stderr, unit="frame",
+                   disable=None if cfg.progress else True, desc="bench starid")
+        for cond in conds:
+            assert cond.mag_limit is not None
+            cat = _catalog(cond.mag_limit, cfg.epoch)
+            for a in adapters:
+                a.setup(cond)
+            frames: list[Frame] = []
+            outcomes: dict[str, list[_Outcome]] = {a.name: [] for a in adapters}
+            bar.set_postfix_str(cond.name)
+            for i in range(cfg.frames):
+                f = make_frame(cat, camera, cond, cfg.seed, i, cfg.mag_noise)
+                frames.append(f)
+                for a in adapters:
+                    outcomes[a.name].append(a.solve(f))
+                bar.update(1)
+            tol = max(cfg.tol_px, cfg.tol_sigma * float(cond.sigma_px or 0.0))
+            per = {name: summarize(frames, o, camera, tol, per_frame=cfg.per_frame)
+                   for name, o in outcomes.items()}
+            n_true = np.array([f.n_true for f in frames])
+            entry: dict[str, Any] = {
+                "name": cond.name, "description": cond.description,
+                "params": {"n_false": cond.n_false, "drop_frac": cond.drop_frac,
+                           "sigma_px": cond.sigma_px, "mag_limit": cond.mag_limit},
+                "frames": cfg.frames,
+                "tolerance_px": tol,
+                "catalog_stars_per_frame": {
+                    "median": float(np.median(n_true)), "min": int(n_true.min()),
+                    "max": int(n_true.max()), "ge3": int((n_true >= 3).sum()),
+                    "ge4": int((n_true >= 4).sum())},
+                "centroids_per_frame_median": float(np.median([len(f.xy) for f in frames])),
+                "solver_params": {a.name: a.params() for a in adapters},
+                "results": per,
+                "time_ratio_ours_over_peer": _ratios(per),
+            }  # fmt: skip
+            results.append(entry)
+        bar.close()
+    finally:
+        for a in adapters:
+            a.close()
+        if tmp is not None:
+            tmp.cleanup()
+    solvers = {a.name: a.info() for a in adapters}
+    solvers.update(skipped)
+    doc = {
+        "schema": "adfusion.bench.starid/1",
+        "machine": _machine(),
+        "code": _code_version(),
+        "config": asdict(cfg),
+        "solvers": {name: solvers[name] for name in cfg.solvers if name in solvers},
+        "conversion_check": check,
+        "conditions": results,
+        "wall_s": round(time.perf_counter() - t_start, 2),
+    }
+    return doc
+
+
+def _ratios(per: dict[str, dict[str, Any]]) -> dict[str, float | None]:
+    if "ours" not in per:
+        return {}
+    ours = per["ours"]["time_ms"]["median"]
+    out: dict[str, float | None] = {}
+    for name, r in per.items():
+        if name == "ours":
+            continue
+        peer = r["time_ms"]["median"]
+        out[name] = None if not ours or not peer else round(ours / peer, 3)
+    return out
+
+
+# --- output ------------------------------------------------------------------------------
+
+
+def _f(x: float | None, fmt: str) -> str:
+    return "—" if x is None else format(x, fmt)
+
+
+def format_table(doc: dict[str, Any]) -> str:
+    """The human-readable report of :func:`run_benchmark`'s result."""
+    cfg, m = doc["config"], doc["machine"]
+    lines = [
+        f"Star identification benchmark: {cfg['frames']} frames per condition, seed "
+        f"{cfg['seed']}, {cfg['width']}x{cfg['height']} px, FOV {cfg['fov_deg']:g}°, "
+        f"stars V < {cfg['mag_limit']:g}, base σ {cfg['sigma_px']:g} px, "
+        f"correct = frame shift < max({cfg['tol_px']:g} px, {cfg['tol_sigma']:g}σ)",
+        f"machine: {m['cpu']} ({m['cores']} cores), Python {m['python']}; starid "
+        f"{doc['code']['git_commit']}{' + local changes' if doc['code']['git_dirty'] else ''}"
+        f" (sources {doc['code']['starid_sources_sha256']})",
+    ]
+    for name, s in doc["solvers"].items():
+        if s.get("status") != "ok":
+            lines.append(f"  {name}: SKIPPED — {s.get('reason')}")
+        elif name == "ours":
+            for key, b in s["indexes"].items():
+                lines.append(f"  ours [{key}]: index {b['index_nbytes'] / 2**20:.1f} MiB "
+                             f"({b['index_pairs']} pairs, {b['catalog_stars']} stars); "
+                             f"build {b['index_build_fresh_s'] * 1e3:.0f} ms uncached, "
+                             f"{b['index_build_s'] * 1e3:.0f} ms in this run (cache)")
+        elif name == "tetra3rs":
+            for key, b in s["databases"].items():
+                lines.append(f"  tetra3rs {s['version']} [{key}]: database "
+                             f"{b['file_bytes'] / 2**20:.1f} MiB ({b['num_stars']} stars, "
+                             f"{b['num_patterns']} patterns), "
+                             f"{'built' if b['built_now'] else 'loaded'} in "
+                             f"{b['build_or_load_s']:.2f} s")
+        elif name == "cedar":
+            db = s.get("database") or {}
+            lines.append(f"  cedar-solve {s['version']} (numpy {s['numpy']}): default "
+                         f"database, FOV {db.get('min_fov')}–{db.get('max_fov')}°, "
+                         f"{db.get('num_patterns')} patterns, mag ≤ "
+                         f"{_f(db.get('star_max_magnitude'), '.2f')}")
+    chk = ", ".join(f"{k} {_f(v['max_error_arcsec'], '.2f')}″"
+                            f"{'' if v['passed'] else ' FAILED'}"
+                    for k, v in doc["conversion_check"].items())
+    lines.append(f"conversion check (noise-free frames, max attitude error): {chk}")
+    head = (f"{'condition':<14} {'solver':<9} {'avail %':>8} {'err %':>6} {'err ≤95%':>8} "
+            f"{'t med ms':>9} {'t p95':>8} {'t max':>8} {'ours/peer':>9}")
+    lines += ["", head, "-" * len(head)]
+    for c in doc["conditions"]:
+        for k, (name, r) in enumerate(c["results"].items()):
+            ratio = c["time_ratio_ours_over_peer"].get(name)
+            lines.append(
+                f"{c['name'] if k == 0 else '':<14} {name:<9} "
+                f"{_f(r['availability_pct'], '.1f'):>8} {_f(r['error_rate_pct'], '.1f'):>6} "
+                f"{_f(r['error_rate_upper95_pct'], '.2f'):>8} "
+                f"{_f(r['time_ms']['median'], '.2f'):>9} {_f(r['time_ms']['p95'], '.2f'):>8} "
+                f"{_f(r['time_ms']['max'], '.1f'):>8} {_f(ratio, '.2f'):>9}")
+        cs = c["catalog_stars_per_frame"]
+        if CONDITIONS.get(c["name"], Condition("")).coverage:
+            avail = "; ".join(
+                f"{name} {_f(r['availability_ge3_pct'], '.1f')} / "
+                f"{_f(r['availability_ge4_pct'], '.1f')} %"
+                for name, r in c["results"].items())
+            lines.append(f"{'':<14} frames with ≥3 / ≥4 catalogue stars: {cs['ge3']} / "
+                         f"{cs['ge4']} of {c['frames']} (median {cs['median']:g}); "
+                         f"availability on those: {avail}")
+    lines.append("")
+    lines.append("avail = correct attitude accepted; err = wrong attitude accepted, with its "
+                 "one-sided 95 % Clopper–Pearson bound; times over all frames, measured in "
+                 "each solver's own process; ours/peer = ratio of median times (< 1: ours "
+                 "faster).")
+    return "\n".join(lines)
+
+
+# --- command line --------------------------------------------------------------------------
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the ``bench starid`` options to ``parser``.
+
+    >>> p = argparse.ArgumentParser()
+    >>> add_arguments(p)
+    >>> p.parse_args(["--json"]).json
+    '-'
+    """
+    d = BenchConfig()
+    parser.add_argument("--frames", type=int, default=d.frames,
+                        help=f"frames per condition (default {d.frames})")
+    parser.add_argument("--seed", type=int, default=d.seed, help="random seed (default 0)")
+    parser.add_argument("--width", type=int, default=d.width, help="image width, px")
+    parser.add_argument("--height", type=int, default=d.height, help="image height, px")
+    parser.add_argument("--fov", type=float, default=d.fov_deg, dest="fov_deg",
+                        help=f"horizontal FOV, degrees (default {d.fov_deg:g})")
+    parser.add_argument("--mag-limit", type=float, default=d.mag_limit,
+                        help=f"visible stars V < this (default {d.mag_limit:g})")
+    parser.add_argument("--sigma", type=float, default=d.sigma_px, dest="sigma_px",
+                        help=f"base centroid noise σ, px (default {d.sigma_px:g})")
+    parser.add_argument("--mag-noise", type=float, default=d.mag_noise,
+                        help=f"magnitude noise σ for the ordering (default {d.mag_noise:g})")
+    parser.add_argument("--tol-px", type=float, default=d.tol_px,
+                        help="largest shift of the frame's corners/centre (px) for an "
+                             f"attitude to count as correct (default {d.tol_px:g})")
+    parser.add_argument("--tol-sigma", type=float, default=d.tol_sigma,
+                        help="... or this many centroid σ, if larger (default "
+                             f"{d.tol_sigma:g})")
+    parser.add_argument("--per-frame", action="store_true",
+                        help="add per-frame outcomes (correct, error, time) to the JSON")
+    parser.add_argument("--conditions", default=",".join(CONDITIONS),
+                        help="comma-separated subset of: " + ", ".join(CONDITIONS))
+    parser.add_argument("--solvers", default=",".join(SOLVER_NAMES),
+                        help="comma-separated subset of: " + ", ".join(SOLVER_NAMES))
+    parser.add_argument("--peer-timeout-ms", type=float, default=d.peer_timeout_ms,
+                        help="solve timeout passed to tetra3rs and cedar (default 5000)")
+    parser.add_argument("--cache-dir", default=None,
+                        help="where the tetra3rs database and the cedar venv are kept "
+                             "(default: the adfusion cache, ~/.cache/adfusion)")
+    parser.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
+                        help="write the results as JSON to PATH (or to stdout instead of "
+                             "the table when no PATH is given)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def config_from_args(args: argparse.Namespace) -> BenchConfig:
+    """A :class:`BenchConfig` from parsed :func:`add_arguments` options."""
+    return BenchConfig(
+        frames=args.frames, seed=args.seed, width=args.width, height=args.height,
+        fov_deg=args.fov_deg, mag_limit=args.mag_limit, sigma_px=args.sigma_px,
+        mag_noise=args.mag_noise, tol_px=args.tol_px, tol_sigma=args.tol_sigma,
+        per_frame=args.per_frame,
+        conditions=[c.strip() for c in args.conditions.split(",") if c.strip()],
+        solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
+        peer_timeout_ms=args.peer_timeout_ms, cache_dir=args.cache_dir,
+        progress=not args.no_progress,
+    )  # fmt: skip
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """Run from parsed options: the table on stdout, JSON per ``--json``; returns the result."""
+    doc = run_benchmark(config_from_args(args))
+    text = json.dumps(doc, indent=2)
+    if args.json == "-":
+        print(text)
+    else:
+        print(format_table(doc))
+        if args.json:
+            Path(args.json).write_text(text + "\n")
+    return doc
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m adfusion.bench_starid [options]``."""
+    p = argparse.ArgumentParser(prog="adfusion bench starid",
+                                description="Lost-in-space star identification benchmark: "
+                                            "ours vs tetra3rs vs cedar-solve.")
+    add_arguments(p)
+    args = p.parse_args(argv)
+    try:
+        run(args)
+    except ValueError as e:
+        print(f"adfusion bench starid: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
