@@ -5,8 +5,8 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 
 Example:
     >>> from adfusion.cli import build_parser
-    >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:2]
-    ['catalog', 'detect']
+    >>> sorted(build_parser()._subparsers._group_actions[0].choices)
+    ['bench', 'catalog', 'detect', 'solve']
 """
 
 from __future__ import annotations
