@@ -39,8 +39,9 @@ from __future__ import annotations
 import hashlib
 import itertools
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,7 +60,12 @@ from starid.nstar import (
     match_faithful,
     match_indexed,
 )
-from starid.verify import DENSITY_SAFETY, binomial_tail, expected_chance_patterns
+from starid.verify import (
+    DENSITY_SAFETY,
+    binomial_tail,
+    expected_chance_patterns,
+    spot_geometry,
+)
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
@@ -74,17 +80,33 @@ class Prior:
 
 @dataclass(frozen=True)
 class Candidate:
-    """One verified geometric match (an entry of the operator-confirmation list)."""
+    """One verified geometric match (an entry of the operator-confirmation list).
+
+    ``predicted_xy`` / ``predicted_ids`` — the catalogue projected into the frame at this
+    attitude, for overlays — are computed on first use, not in the solve's hot path.
+    """
 
     q_cam_icrs: NDArray[np.float64]
     matches: list[tuple[int, int]]  # (detection index, catalogue id)
     residuals_rad: NDArray[np.float64]
     p_false: float
     n_pattern: int
-    predicted_xy: NDArray[np.float64]  # catalogue stars projected into the frame
-    predicted_ids: NDArray[np.int64]
     camera: Camera
     covariance: NDArray[np.float64]  # 3×3, camera frame, rad²
+    _projector: Callable[[NDArray, Camera], tuple[NDArray, NDArray]] = field(
+        repr=False, compare=False, default=None)
+
+    @cached_property
+    def _predicted(self) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        return self._projector(self.q_cam_icrs, self.camera)
+
+    @property
+    def predicted_xy(self) -> NDArray[np.float64]:
+        return self._predicted[0]
+
+    @property
+    def predicted_ids(self) -> NDArray[np.int64]:
+        return self._predicted[1]
 
     @property
     def radec_roll_deg(self) -> tuple[float, float, float]:
@@ -259,11 +281,12 @@ class Solver:
             return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at row " \
                        f"{int(np.flatnonzero(bad)[0])}"
         use = xy[: self.max_detections]
-        d, j = cKDTree(use).query(use, k=2)
-        dup = np.flatnonzero(d[:, 1] < 1e-6)
+        d2 = np.sum((use[:, None, :] - use[None, :, :]) ** 2, axis=-1)
+        np.fill_diagonal(d2, np.inf)
+        dup = np.argwhere(d2 < 1e-12)
         if len(dup):
-            return xy, f"bad input: duplicate centroids at rows {int(dup[0])} and " \
-                       f"{int(j[dup[0], 1])}"
+            return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
+                       f"{int(dup[0, 1])}"
         outside = ~self.camera.in_frame(use, margin=-0.5 * max(self.camera.width,
                                                                self.camera.height))
         if outside.any():
@@ -332,7 +355,7 @@ class Solver:
         tried = 0
         first_counter = None
         budget_note = ""
-        weak: list[tuple[float, NDArray, NDArray, NDArray, float, str, int]] = []
+        weak: list[tuple[float, NDArray, NDArray, NDArray, float, str, int]] = []  # failed
         rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
         budget = self.max_patterns * len(cams)
         for pat_idx, path in self._patterns(len(xy)):
@@ -358,19 +381,20 @@ class Solver:
                     first_counter = len(assignments)
                 if len(assignments) == 0:
                     continue
-                e_trials = expected_chance_patterns(ang, tol, len(self.vectors),
-                                                    pattern.chirality != 0) * tried
+                chance = _Chance(ang, np.broadcast_to(tol, ang.shape), tried,
+                                 pattern.chirality != 0)
                 cands: list[Candidate] = []
                 for a in assignments:
-                    quick = self._quick_check(b_all, sel, a, cam, e_trials)
+                    quick = self._quick_check(b_all, sel, a, cam, chance)
                     if quick is None:
                         continue
-                    if quick[0] <= self.p_false_max:
-                        c = self._verify(xy, cam, sel, a, quick[1], e_trials)
+                    p, R, e_trials = quick
+                    if p <= self.p_false_max:
+                        c = self._verify(xy, cam, sel, a, R, e_trials)
                         if c is not None:
                             cands.append(c)
                     else:
-                        weak.append((quick[0], sel, a, quick[1], e_trials, path, ci))
+                        weak.append((p, sel, a, R, e_trials, path, ci))
                 accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
                                      3 * self.tolerance_rad)
                 if len(accepted) == 1:
@@ -425,16 +449,15 @@ class Solver:
         np.fill_diagonal(ang, 0.0)
         n_img = min(len(xy), params.max_stars)
         trials = max(1, n_img * (n_img - 1) * (n_img - 2) // 6)  # every image triangle
-        e_trials = trials * expected_chance_patterns(
-            ang, np.radians(params.tol_sep_deg), len(self.vectors), mirror_checked=True)
-        quick = self._quick_check(b_all, sel, assign, self.camera, e_trials)
+        chance = _Chance(ang, np.full(ang.shape, np.radians(params.tol_sep_deg)), trials, True)
+        quick = self._quick_check(b_all, sel, assign, self.camera, chance)
         if quick is None:
             return Solution(False, "triad: match not confirmed by the projected catalogue",
                             path="triad")
         if quick[0] > self.p_false_max:
             return Solution(False, f"insufficient evidence: triad match p_false "
                                    f"{quick[0]:.2g} > {self.p_false_max:.0e}", path="triad")
-        cand = self._verify(xy, self.camera, sel, assign, quick[1], e_trials)
+        cand = self._verify(xy, self.camera, sel, assign, quick[1], quick[2])
         if cand is None or cand.p_false > self.p_false_max:
             return Solution(False, "triad: match failed full verification", path="triad")
         return self._solution(cand, 1, "triad", [cand])
@@ -465,9 +488,13 @@ class Solver:
         return det.astype(np.int64), j[det].astype(np.int64)
 
     def _quick_check(self, b_all: NDArray, sel: NDArray, assign: NDArray, cam: Camera,
-                     e_trials: float) -> tuple[float, NDArray] | None:
+                     chance: _Chance) -> tuple[float, NDArray, float] | None:
         """Cheap verification: attitude from the pattern, every detection rotated into
-        ICRS and matched in one KD-tree query. Returns (p_false, R) or None."""
+        ICRS and matched in one KD-tree query. Returns (p_false, R, e_trials) or None.
+
+        ``e_trials`` is the expected number of chance patterns fitting *as well as this
+        candidate does* — windows shrunk to its own pair residuals, but never below the
+        centroid noise — times the trials so far (a union bound over the search)."""
         R = _rotation_from_pairs(b_all[sel], self.vectors[assign])
         if R is None:
             return None
@@ -476,52 +503,55 @@ class Solver:
         got = dict(zip(det_i.tolist(), cat_i.tolist(), strict=True))
         if any(got.get(int(d)) != int(c) for d, c in zip(sel, assign, strict=True)):
             return None
+        vc = self.vectors[assign]
+        resid = np.abs(chance.angles - np.arccos(np.clip(vc @ vc.T, -1.0, 1.0)))
+        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
+        tol_fit = np.minimum(np.maximum(resid, floor), chance.tol)
+        e_trials = chance.trials * expected_chance_patterns(
+            chance.angles, tol_fit, len(self.vectors), chance.mirror_checked, chance.geometry)
         k_other = len(det_i) - len(sel)
         p = e_trials * binomial_tail(k_other, len(b_all) - len(sel),
                                      self._p_hit(int(assign[0]), radius))
-        return min(1.0, p), R
+        return min(1.0, p), R, e_trials
 
     def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
                 R: NDArray, e_trials: float) -> Candidate | None:
         """Full verification of a candidate that passed the quick check: refit on all
-        matches (and the focal length when it is uncertain), final association,
-        covariance, and the catalogue projected into the frame for overlays."""
+        matches (and the focal length when it is uncertain), re-associate at the refined
+        attitude, final fit with covariance, and the p_false of the final match count."""
         b_all = cam.pixels_to_vectors(xy)
         radius = self._match_radius_px() * cam.pixel_scale_rad
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
-        for _ in range(2):
-            det_i, cat_i = self._associate_icrs(b_all, R, radius)
-            if self.fov_error_deg > 0 and len(det_i) >= 4:
-                fit = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
-                                 try_mirror=False)
-                cam = fit.camera
-                b_all = cam.pixels_to_vectors(xy)
-                radius = self._match_radius_px() * cam.pixel_scale_rad
-                sigma = self.centroid_sigma_px * cam.pixel_scale_rad
-            try:
-                w = wahba(b_all[det_i], self.vectors[cat_i], sigma)
-            except ValueError:
-                return None
-            R = rot.to_matrix(w.q_cam_icrs)
         det_i, cat_i = self._associate_icrs(b_all, R, radius)
+        if self.fov_error_deg > 0 and len(det_i) >= 4:
+            cam = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
+                             try_mirror=False).camera
+            b_all = cam.pixels_to_vectors(xy)
+            radius = self._match_radius_px() * cam.pixel_scale_rad
+            sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+        R2 = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+        if R2 is None:
+            return None
+        det_i, cat_i = self._associate_icrs(b_all, R2, radius)
         got = dict(zip(det_i.tolist(), cat_i.tolist(), strict=True))
         if any(got.get(int(d)) != int(c) for d, c in zip(sel, assign, strict=True)):
             return None
-        final = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+        try:
+            final = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+        except ValueError:
+            return None
         k_other = len(det_i) - len(sel)
         p_false = min(1.0, e_trials * binomial_tail(k_other, len(xy) - len(sel),
                                                     self._p_hit(int(assign[0]), radius)))
-        pred_xy, pred_idx = self._project(final.q_cam_icrs, cam)
         return Candidate(
             q_cam_icrs=final.q_cam_icrs,
             matches=[(int(d), int(self.ids[c])) for d, c in zip(det_i, cat_i, strict=True)],
             residuals_rad=final.residuals_rad,
             p_false=p_false,
             n_pattern=len(sel),
-            predicted_xy=pred_xy,
-            predicted_ids=self.ids[pred_idx],
             camera=cam,
             covariance=final.covariance,
+            _projector=self._project,
         )
 
     def _match(self, pattern: Pattern) -> NDArray[np.int64]:
@@ -544,6 +574,7 @@ class Solver:
         return [(dec <= hi + o) & (dec >= lo - o) for hi, lo in itertools.pairwise(edges)]
 
     def _project(self, q: NDArray, cam: Camera) -> tuple[NDArray, NDArray[np.int64]]:
+        """Catalogue stars inside the frame at attitude q: pixel positions and catalogue ids."""
         boresight = rot.rotate(rot.inverse(q), [0.0, 0.0, 1.0])
         half = 0.5 * np.radians(cam.diagonal_fov_deg) + 1e-3
         idx = np.array(self._tree.query_ball_point(boresight, 2 * np.sin(half / 2)),
@@ -553,7 +584,7 @@ class Solver:
         v = rot.rotate(q, self.vectors[idx])
         pxy = cam.vectors_to_pixels(v)
         inside = cam.in_frame(pxy)
-        return pxy[inside], idx[inside]
+        return pxy[inside], self.ids[idx[inside]]
 
     def _solution(self, c: Candidate, counter: int, path: str,
                   cands: list[Candidate]) -> Solution:
@@ -571,6 +602,20 @@ def _pattern(ang: NDArray, b: NDArray, tol: NDArray) -> Pattern:
     hi = np.minimum(ang + t, np.pi)
     chir = chirality_of(b, 2.0 * float(np.max(t))) if n >= 3 else 0
     return Pattern(ang, np.cos(hi), np.cos(lo), chir, float(hi.max()))
+
+
+@dataclass(frozen=True)
+class _Chance:
+    """What the chance-match estimate needs about the pattern being tried."""
+
+    angles: NDArray[np.float64]  # image pair angles (rad), matching order
+    tol: NDArray[np.float64]  # the matching windows' half-widths (rad)
+    trials: int  # patterns (× focal guesses) tried so far, this one included
+    mirror_checked: bool
+
+    @cached_property
+    def geometry(self) -> list[tuple[int, int, float]]:
+        return spot_geometry(self.angles)
 
 
 def _rotation_from_pairs(b: NDArray, r: NDArray) -> NDArray | None:

@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import bdtrc
 
-__all__ = ["binomial_tail", "expected_chance_patterns"]
+__all__ = ["binomial_tail", "expected_chance_patterns", "spot_geometry"]
 
 # mean catalogue density is doubled: the Milky Way holds several times the mean at V ~ 6
 DENSITY_SAFETY = 2.0
@@ -49,6 +49,7 @@ def expected_chance_patterns(
     tol: NDArray[np.float64] | float,
     n_catalog: int,
     mirror_checked: bool,
+    geometry: list[tuple[int, int, float]] | None = None,
 ) -> float:
     """Expected number of catalogue n-star patterns matching ``angles`` by chance.
 
@@ -60,27 +61,33 @@ def expected_chance_patterns(
     two stars alone pin a far star only loosely, the others pin it well. Further
     distances are not credited (they tighten the spot further, so this stays an upper
     estimate). Densities are per steradian, doubled for safety (:data:`DENSITY_SAFETY`).
+    ``geometry`` is :func:`spot_geometry` of ``angles``, when the caller has it already.
     """
     a = np.asarray(angles, dtype=np.float64)
-    n = len(a)
     w = 2.0 * np.broadcast_to(np.asarray(tol, dtype=np.float64), a.shape)
     rho = DENSITY_SAFETY * n_catalog / (4.0 * np.pi)
     e = float(n_catalog) * rho * 2.0 * np.pi * max(np.sin(a[0, 1]), 1e-6) * w[0, 1]
     e *= 2.0  # either image star of the first pair may be either catalogue star
-    for m in range(2, n):
-        best = 0.0
-        area = np.inf
+    for m, (s, t, sin_gamma) in enumerate(geometry or spot_geometry(a), start=2):
+        spots = 1.0 if (m >= 3 or mirror_checked) else 2.0
+        e *= rho * spots * w[s, m] * w[t, m] / max(sin_gamma, 0.05)
+    return e
+
+
+def spot_geometry(angles: NDArray[np.float64]) -> list[tuple[int, int, float]]:
+    """For each star m ≥ 2: the placed pair (s, t) whose arcs cross most steeply at m,
+    and the sine of that crossing angle (depends on the image geometry only)."""
+    a = np.asarray(angles, dtype=np.float64)
+    out = []
+    for m in range(2, len(a)):
+        best = (0, 1, 0.0)
         for s in range(m):
             for t in range(s + 1, m):
-                sg = np.sin(_crossing_angle(a[s, t], a[s, m], a[t, m]))
-                if sg > best:
-                    best = sg
-                    area = w[s, m] * w[t, m] / max(sg, 0.05)
-        if not np.isfinite(area):
-            area = w[0, m] * w[1, m] / 0.05
-        spots = 1.0 if (m >= 3 or mirror_checked) else 2.0
-        e *= rho * spots * area
-    return e
+                sg = float(np.sin(_crossing_angle(a[s, t], a[s, m], a[t, m])))
+                if sg > best[2]:
+                    best = (s, t, sg)
+        out.append(best)
+    return out
 
 
 def _crossing_angle(d01: float, d0m: float, d1m: float) -> float:
