@@ -23,6 +23,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,27 +105,36 @@ class PatternIndex:
         stars = np.asarray(stars, dtype=np.int64)
         if len(stars) == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        cmin = np.broadcast_to(np.asarray(cos_min, dtype=np.float64), stars.shape)
-        cmax = np.broadcast_to(np.asarray(cos_max, dtype=np.float64), stars.shape)
         # the bin table gives, per star, where its (angle-sorted) row crosses each bin
         # edge: the bins covering the window are a superset, filtered exactly below
         nb = self.nbr_bin.shape[1] - 1
         step = self.max_sep_rad / nb
-        th_lo = np.arccos(np.clip(cmax, -1.0, 1.0))
-        th_hi = np.arccos(np.clip(cmin, -1.0, 1.0))
-        b0 = np.clip((th_lo / step).astype(np.int64), 0, nb)
-        b1 = np.clip((th_hi / step).astype(np.int64) + 1, 0, nb)
-        lo = self.nbr_bin[stars, b0].astype(np.int64)
-        hi = self.nbr_bin[stars, b1].astype(np.int64)
-        counts = np.maximum(hi - lo, 0)
+        scalar = np.ndim(cos_min) == 0 and np.ndim(cos_max) == 0
+        if scalar:  # the matcher's case: one window for all stars, no per-star arrays
+            # windows are cosines of angles in [0, π], already inside [−1, 1]
+            b0 = min(max(int(math.acos(cos_max) / step), 0), nb)
+            b1 = min(max(int(math.acos(cos_min) / step) + 1, 0), nb)
+            lo = self.nbr_bin[stars, b0]
+            hi = self.nbr_bin[stars, b1]
+        else:
+            cmin_a = np.broadcast_to(np.asarray(cos_min, dtype=np.float64), stars.shape)
+            cmax_a = np.broadcast_to(np.asarray(cos_max, dtype=np.float64), stars.shape)
+            b0 = np.clip((np.arccos(cmax_a) / step).astype(np.int64), 0, nb)
+            b1 = np.clip((np.arccos(cmin_a) / step).astype(np.int64) + 1, 0, nb)
+            lo = self.nbr_bin[stars, b0]
+            hi = self.nbr_bin[stars, b1]
+        counts = (hi - lo).astype(np.int64)
         total = int(counts.sum())
         if total == 0:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         parent = np.repeat(np.arange(len(stars)), counts)
-        offs = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-        pos = np.repeat(lo, counts) + offs
+        # position of each candidate in the CSR arrays: its row start plus its rank
+        pos = np.arange(total) + (lo.astype(np.int64) - np.cumsum(counts) + counts)[parent]
         c = self.nbr_cos[pos]
-        keep = (c > cmin[parent]) & (c < cmax[parent])
+        if scalar:
+            keep = (c > cos_min) & (c < cos_max)
+        else:
+            keep = (c > cmin_a[parent]) & (c < cmax_a[parent])
         return parent[keep], self.nbr_idx[pos[keep]].astype(np.int64)
 
     def __post_init__(self) -> None:

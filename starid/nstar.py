@@ -159,12 +159,11 @@ def match_indexed(
         if star_subset is not None:
             keep = star_subset[cand]
             parent, cand = parent[keep], cand[keep]
-        ok = np.ones(len(cand), dtype=bool)
-        vc = v[cand]
-        for s in range(1, m):
-            prev = assign[parent, s]
-            c = np.einsum("ij,ij->i", v[prev], vc)
-            ok &= _in_window(c, pattern.cos_min[s, m], pattern.cos_max[s, m]) & (prev != cand)
+        # all links of the new star to the stars already placed, in one product
+        prev = assign[parent, 1:m]  # (K, m − 1)
+        c = np.einsum("kmj,kj->km", v[prev], v[cand])
+        ok = np.all((c > pattern.cos_min[1:m, m]) & (c < pattern.cos_max[1:m, m])
+                    & (prev != cand[:, None]), axis=1)
         parent, cand = parent[ok], cand[ok]
         assign = np.concatenate([assign[parent], cand[:, None]], axis=1)
         if m == 2 and pattern.chirality != 0 and len(assign):

@@ -355,7 +355,7 @@ class Solver:
         tried = 0
         first_counter = None
         budget_note = ""
-        weak: list[tuple[float, NDArray, NDArray, NDArray, float, str, int]] = []  # failed
+        weak: list[tuple] = []  # (p_false, sel, assign, quick result, path, camera index)
         rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
         budget = self.max_patterns * len(cams)
         for pat_idx, path in self._patterns(len(xy)):
@@ -388,13 +388,12 @@ class Solver:
                     quick = self._quick_check(b_all, sel, a, cam, chance)
                     if quick is None:
                         continue
-                    p, R, e_trials = quick
-                    if p <= self.p_false_max:
-                        c = self._verify(xy, cam, sel, a, R, e_trials)
+                    if quick[0] <= self.p_false_max:
+                        c = self._verify(xy, cam, sel, a, quick, b_all)
                         if c is not None:
                             cands.append(c)
                     else:
-                        weak.append((p, sel, a, R, e_trials, path, ci))
+                        weak.append((quick[0], sel, a, quick, path, ci))
                 accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
                                      3 * self.tolerance_rad)
                 if len(accepted) == 1:
@@ -409,11 +408,11 @@ class Solver:
             # nothing convincing: show the best few for an operator (or a filter's prior)
             weak.sort(key=lambda w: w[0])
             shown = [c for w in weak[:3]
-                     if (c := self._verify(xy, cams[w[6]], w[1], w[2], w[3], w[4])) is not None]
+                     if (c := self._verify(xy, cams[w[5]], w[1], w[2], w[3])) is not None]
             reason = (f"ambiguous: weak evidence, the best candidate has p_false "
                       f"{weak[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
             return Solution(False, reason, matching_counter=first_counter or 0,
-                            path=weak[0][5], candidates=_distinct(shown, 3 * self.tolerance_rad)
+                            path=weak[0][4], candidates=_distinct(shown, 3 * self.tolerance_rad)
                             ), tried
         reason = f"no match: {budget_note or f'{tried} patterns tried'}"
         return Solution(False, reason, matching_counter=first_counter or 0), tried
@@ -457,7 +456,7 @@ class Solver:
         if quick[0] > self.p_false_max:
             return Solution(False, f"insufficient evidence: triad match p_false "
                                    f"{quick[0]:.2g} > {self.p_false_max:.0e}", path="triad")
-        cand = self._verify(xy, self.camera, sel, assign, quick[1], quick[2])
+        cand = self._verify(xy, self.camera, sel, assign, quick)
         if cand is None or cand.p_false > self.p_false_max:
             return Solution(False, "triad: match failed full verification", path="triad")
         return self._solution(cand, 1, "triad", [cand])
@@ -488,9 +487,10 @@ class Solver:
         return det.astype(np.int64), j[det].astype(np.int64)
 
     def _quick_check(self, b_all: NDArray, sel: NDArray, assign: NDArray, cam: Camera,
-                     chance: _Chance) -> tuple[float, NDArray, float] | None:
+                     chance: _Chance) -> tuple[float, NDArray, float, NDArray, NDArray] | None:
         """Cheap verification: attitude from the pattern, every detection rotated into
-        ICRS and matched in one KD-tree query. Returns (p_false, R, e_trials) or None.
+        ICRS and matched in one KD-tree query. Returns (p_false, R, e_trials, detection
+        indices, catalogue indices) or None.
 
         ``e_trials`` is the expected number of chance patterns fitting *as well as this
         candidate does* — windows shrunk to its own pair residuals, but never below the
@@ -500,8 +500,7 @@ class Solver:
             return None
         radius = self._match_radius_px() * cam.pixel_scale_rad
         det_i, cat_i = self._associate_icrs(b_all, R, radius)
-        got = dict(zip(det_i.tolist(), cat_i.tolist(), strict=True))
-        if any(got.get(int(d)) != int(c) for d, c in zip(sel, assign, strict=True)):
+        if not _keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
             return None
         vc = self.vectors[assign]
         resid = np.abs(chance.angles - np.arccos(np.clip(vc @ vc.T, -1.0, 1.0)))
@@ -512,30 +511,37 @@ class Solver:
         k_other = len(det_i) - len(sel)
         p = e_trials * binomial_tail(k_other, len(b_all) - len(sel),
                                      self._p_hit(int(assign[0]), radius))
-        return min(1.0, p), R, e_trials
+        return min(1.0, p), R, e_trials, det_i, cat_i
 
     def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
-                R: NDArray, e_trials: float) -> Candidate | None:
-        """Full verification of a candidate that passed the quick check: refit on all
-        matches (and the focal length when it is uncertain), re-associate at the refined
-        attitude, final fit with covariance, and the p_false of the final match count."""
-        b_all = cam.pixels_to_vectors(xy)
+                quick: tuple[float, NDArray, float, NDArray, NDArray],
+                b_all: NDArray | None = None) -> Candidate | None:
+        """Full verification of a candidate that passed the quick check: refit on all its
+        matches (and the focal length when it is uncertain), re-associate if the refit
+        moved the attitude noticeably, final fit with covariance, and the p_false of the
+        final match count."""
+        _, R, e_trials, det_i, cat_i = quick
+        if b_all is None:
+            b_all = cam.pixels_to_vectors(xy)
         radius = self._match_radius_px() * cam.pixel_scale_rad
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
-        det_i, cat_i = self._associate_icrs(b_all, R, radius)
+        refit = False
         if self.fov_error_deg > 0 and len(det_i) >= 4:
             cam = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
                              try_mirror=False).camera
             b_all = cam.pixels_to_vectors(xy)
             radius = self._match_radius_px() * cam.pixel_scale_rad
             sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+            refit = True
         R2 = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
         if R2 is None:
             return None
-        det_i, cat_i = self._associate_icrs(b_all, R2, radius)
-        got = dict(zip(det_i.tolist(), cat_i.tolist(), strict=True))
-        if any(got.get(int(d)) != int(c) for d, c in zip(sel, assign, strict=True)):
-            return None
+        # rotation angle between R and R2 from the trace: 1 − cos θ = (3 − tr)/2
+        moved = np.sqrt(max(0.0, 2.0 * (3.0 - float(np.sum(R * R2))) / 2.0))
+        if refit or moved > 0.25 * radius:
+            det_i, cat_i = self._associate_icrs(b_all, R2, radius)
+            if not _keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
+                return None
         try:
             final = wahba(b_all[det_i], self.vectors[cat_i], sigma)
         except ValueError:
@@ -616,6 +622,14 @@ class _Chance:
     @cached_property
     def geometry(self) -> list[tuple[int, int, float]]:
         return spot_geometry(self.angles)
+
+
+def _keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,
+                   n_det: int) -> bool:
+    """Whether the association kept every pattern star on its assigned catalogue star."""
+    lookup = np.full(n_det, -1, dtype=np.int64)
+    lookup[det_i] = cat_i
+    return bool(np.all(lookup[sel] == assign))
 
 
 def _rotation_from_pairs(b: NDArray, r: NDArray) -> NDArray | None:

@@ -24,6 +24,8 @@ Example:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import bdtrc
@@ -77,13 +79,13 @@ def expected_chance_patterns(
 def spot_geometry(angles: NDArray[np.float64]) -> list[tuple[int, int, float]]:
     """For each star m ≥ 2: the placed pair (s, t) whose arcs cross most steeply at m,
     and the sine of that crossing angle (depends on the image geometry only)."""
-    a = np.asarray(angles, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64).tolist()
     out = []
     for m in range(2, len(a)):
         best = (0, 1, 0.0)
         for s in range(m):
             for t in range(s + 1, m):
-                sg = float(np.sin(_crossing_angle(a[s, t], a[s, m], a[t, m])))
+                sg = math.sin(_crossing_angle(a[s][t], a[s][m], a[t][m]))
                 if sg > best[2]:
                     best = (s, t, sg)
         out.append(best)
@@ -92,8 +94,8 @@ def spot_geometry(angles: NDArray[np.float64]) -> list[tuple[int, int, float]]:
 
 def _crossing_angle(d01: float, d0m: float, d1m: float) -> float:
     """Angle at star m between the arcs to stars 0 and 1 (spherical law of cosines)."""
-    denom = np.sin(d0m) * np.sin(d1m)
+    denom = math.sin(d0m) * math.sin(d1m)
     if denom <= 0:
         return 0.0
-    c = (np.cos(d01) - np.cos(d0m) * np.cos(d1m)) / denom
-    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+    c = (math.cos(d01) - math.cos(d0m) * math.cos(d1m)) / denom
+    return math.acos(min(1.0, max(-1.0, c)))
