@@ -72,10 +72,23 @@ __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
 @dataclass(frozen=True)
 class Prior:
-    """An attitude prior for tracking: ``q_cam_icrs`` with a 1-σ uncertainty (deg)."""
+    """An attitude prior for tracking: ``q_cam_icrs`` with a 1-σ uncertainty (deg).
+
+    ``sigma_deg`` is the largest 1-σ attitude error about any axis (a filter's
+    ``search_cone_deg(k=1)``). ``k`` sets the gate in σ.
+    """
 
     q_cam_icrs: NDArray[np.float64]
     sigma_deg: float
+    k: float = 3.0
+
+    def __post_init__(self) -> None:
+        q = np.asarray(self.q_cam_icrs, dtype=np.float64)
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
+            raise ValueError("Prior.q_cam_icrs must be a finite, non-zero quaternion [w,x,y,z]")
+        if not (np.isfinite(self.sigma_deg) and self.sigma_deg > 0):
+            raise ValueError(f"Prior.sigma_deg must be positive, got {self.sigma_deg}")
+        object.__setattr__(self, "q_cam_icrs", rot.normalize(q))
 
 
 @dataclass(frozen=True)
@@ -167,6 +180,12 @@ class Solver:
         dec_check: Renken's declination-difference pre-check (faithful mode only).
         max_detections: the brightest detections considered (the rest are ignored).
         max_patterns: Not-Modus budget (patterns tried per focal scale).
+        max_tracking_cone_deg: a prior looser than this (k·σ) goes straight to
+            lost-in-space: beyond it, associating by prediction is no longer safe.
+        p_false_max_tracking: acceptance threshold with a prior. Tracking asks a much
+            narrower question than lost-in-space (are these the predicted stars?), a
+            filter's innovation gate checks the fix again, and two-star frames must be
+            usable: 1e-4 by default.
         work_budget: maximum partial assignments per matching level.
     """
 
@@ -190,11 +209,15 @@ class Solver:
         cache: bool = True,
         method: str = "nstar",
         triad_params=None,
+        max_tracking_cone_deg: float = 3.0,
+        p_false_max_tracking: float = 1e-4,
     ) -> None:
         if method not in ("nstar", "triad"):
             raise ValueError(f"method must be 'nstar' or 'triad', got {method!r}")
         self.method = method
         self.triad_params = triad_params
+        self.max_tracking_cone_deg = float(max_tracking_cone_deg)
+        self.p_false_max_tracking = float(p_false_max_tracking)
         self._triad_db = None
         if not 2 <= n_min <= n_max <= 8:
             raise ValueError(f"need 2 ≤ n_min ≤ n_max ≤ 8, got {n_min}, {n_max}")
@@ -231,6 +254,7 @@ class Solver:
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
         self._tree = cKDTree(self.vectors)
+        self._memo: dict = {}
 
     # --- public -----------------------------------------------------------------------
 
@@ -243,12 +267,25 @@ class Solver:
         shape raises.
         """
         t0 = time.perf_counter()
-        if prior is not None:
-            raise NotImplementedError("tracking with a prior arrives with the estimation work")
-        xy, problem = self._parse(detections)
+        xy, problem = self._parse(detections, min_count=2 if prior is not None else 3)
         if problem:
             return Solution(False, problem, time_s=time.perf_counter() - t0,
-                            n_detections=len(xy))
+                            n_detections=len(xy), mode="tracking" if prior else "lost-in-space")
+        fallback_note = ""
+        if prior is not None:
+            if prior.k * prior.sigma_deg <= self.max_tracking_cone_deg:
+                sol = self._solve_tracking(xy, prior)
+                if sol.ok:
+                    return _replace(sol, time_s=time.perf_counter() - t0,
+                                    n_detections=len(xy))
+                fallback_note = f"tracking failed ({sol.reason}); "
+            else:
+                fallback_note = (f"prior too loose ({prior.k:g}σ = {prior.k * prior.sigma_deg:.3g}°"
+                                 f" > {self.max_tracking_cone_deg:g}°); ")
+            if len(xy) < 3:
+                return Solution(False, fallback_note + "too few detections for lost-in-space",
+                                mode="tracking", time_s=time.perf_counter() - t0,
+                                n_detections=len(xy))
         if self.method == "triad":
             sol = self._solve_triad(xy)
             return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
@@ -256,12 +293,14 @@ class Solver:
         cams = [self.camera.scaled(k) if k != 1.0 else self.camera
                 for k in self._focal_scales()]
         sol, tried = self._solve_at(xy, cams)
+        if fallback_note and not sol.ok:
+            sol = _replace(sol, reason=fallback_note + sol.reason)
         return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                         patterns_tried=tried)
 
     # --- internals ----------------------------------------------------------------------
 
-    def _parse(self, detections) -> tuple[NDArray[np.float64], str]:
+    def _parse(self, detections, min_count: int = 3) -> tuple[NDArray[np.float64], str]:
         if hasattr(detections, "xy"):
             xy = np.asarray(detections.xy, dtype=np.float64)
             if getattr(detections, "ok", True) is False:
@@ -274,8 +313,8 @@ class Solver:
             if arr.shape[1] == 3:
                 arr = arr[np.argsort(-arr[:, 2], kind="stable")]
             xy = arr[:, :2]
-        if len(xy) < 3:
-            return xy, f"too few detections ({len(xy)} < 3)"
+        if len(xy) < min_count:
+            return xy, f"too few detections ({len(xy)} < {min_count})"
         bad = ~np.isfinite(xy).all(axis=1)
         if bad.any():
             return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at row " \
@@ -416,6 +455,84 @@ class Solver:
                             ), tried
         reason = f"no match: {budget_note or f'{tried} patterns tried'}"
         return Solution(False, reason, matching_counter=first_counter or 0), tried
+
+    def _solve_tracking(self, xy: NDArray, prior: Prior) -> Solution:
+        """Tracking: predict the catalogue stars in the prior's field, associate the
+        detections inside the prior's gate, refine, and accept with ≥ 2 stars when a
+        chance coincidence is improbable.
+
+        Association runs in steps so that a prior off by more than the star spacing
+        cannot pair stars crosswise: every predicted star takes its nearest detection
+        within the wide gate (k·σ), the median image offset of those pairs corrects the
+        prior's pointing, pairs are redone within a medium radius (what is left is roll),
+        then Wahba and re-association within the tight radius, twice. ``p_false`` is the
+        chance that this many of the M detections fall within the tight radius of
+        predicted stars by accident, times
+        the number of alternative pairings the wide gates allowed.
+        """
+        cam = self.camera
+        q0 = prior.q_cam_icrs
+        gate_rad = np.radians(prior.k * prior.sigma_deg)
+        pred_xy, _, pred_idx = self._project_idx(q0, cam, margin_rad=gate_rad)
+        if len(pred_xy) < 2:
+            return Solution(False, f"{len(pred_xy)} catalogue star(s) predicted in view",
+                            mode="tracking")
+        f_px = 1.0 / cam.pixel_scale_rad
+        tight = self._match_radius_px()
+        wide = max(prior.k * prior.sigma_deg * np.pi / 180 * f_px * 1.2 + tight, tight)
+        tree = cKDTree(xy)
+        d, j = tree.query(pred_xy, distance_upper_bound=wide)
+        hit = np.isfinite(d)
+        if hit.sum() < 2:
+            return Solution(False, f"{int(hit.sum())} predicted star(s) with a detection in "
+                                   f"the gate", mode="tracking")
+        # alternative pairings inside the wide gates (1 each when the prior is tight)
+        n_alt = np.array([len(c) for c in tree.query_ball_point(pred_xy[hit], wide)])
+        shift = np.median(xy[j[hit]] - pred_xy[hit], axis=0)
+        b_all = cam.pixels_to_vectors(xy)
+        # after the shift what is left is mostly roll (largest at the edges): pair within
+        # a medium radius, then tighten through two fits
+        medium = max(tight, 0.3 * wide)
+        det_i, cat_i = _pair_within(xy, pred_xy + shift, pred_idx, medium)
+        for _ in range(3):
+            if len(det_i) < 2:
+                break
+            R = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+            if R is None:
+                return Solution(False, "tracked stars are collinear", mode="tracking")
+            det_i, cat_i = self._associate_icrs(b_all, R, tight * cam.pixel_scale_rad)
+            # keep only stars the prior predicted (tracking never jumps elsewhere)
+            keep = np.isin(cat_i, pred_idx)
+            det_i, cat_i = det_i[keep], cat_i[keep]
+        if len(det_i) < 2:
+            return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
+                            mode="tracking")
+        sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+        try:
+            w = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+        except ValueError as e:
+            return Solution(False, f"tracking fit failed: {e}", mode="tracking")
+        offset = float(rot.angle_between(w.q_cam_icrs, q0))
+        if offset > gate_rad + 3 * np.sqrt(np.max(np.linalg.eigvalsh(w.covariance))):
+            return Solution(False, f"fix {np.degrees(offset):.3g}° from the prior, outside its "
+                                   f"{prior.k:g}σ gate", mode="tracking")
+        p_hit = min(1.0, len(pred_xy) * np.pi * tight**2 / (cam.width * cam.height))
+        n_hyp = float(np.prod(np.maximum(n_alt, 1)))
+        p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
+        cand = Candidate(
+            q_cam_icrs=w.q_cam_icrs,
+            matches=[(int(a), int(self.ids[c])) for a, c in zip(det_i, cat_i, strict=True)],
+            residuals_rad=w.residuals_rad, p_false=p_false, n_pattern=len(det_i),
+            camera=cam, covariance=w.covariance, _projector=self._project,
+        )
+        if p_false > self.p_false_max_tracking:
+            return Solution(False, f"ambiguous: {len(det_i)} tracked stars, p_false "
+                                   f"{p_false:.2g} > {self.p_false_max_tracking:.0e}",
+                            mode="tracking", candidates=[cand])
+        return Solution(True, "", q_cam_icrs=w.q_cam_icrs, matches=cand.matches,
+                        matching_counter=1, covariance=w.covariance, mode="tracking",
+                        p_false=p_false, path="tracking", candidates=[cand],
+                        residuals_rad=w.residuals_rad, camera=cam)
 
     def _solve_triad(self, xy: NDArray) -> Solution:
         """Yee's triad method (:mod:`starid.triad`), then our verification: Yee's voting
@@ -581,16 +698,34 @@ class Solver:
 
     def _project(self, q: NDArray, cam: Camera) -> tuple[NDArray, NDArray[np.int64]]:
         """Catalogue stars inside the frame at attitude q: pixel positions and catalogue ids."""
-        boresight = rot.rotate(rot.inverse(q), [0.0, 0.0, 1.0])
-        half = 0.5 * np.radians(cam.diagonal_fov_deg) + 1e-3
+        pxy, ids, _ = self._project_idx(q, cam)
+        return pxy, ids
+
+    def _project_idx(self, q: NDArray, cam: Camera, margin_rad: float = 0.0,
+                     ) -> tuple[NDArray, NDArray[np.int64], NDArray[np.int64]]:
+        """As :meth:`_project`, plus catalogue indices; ``margin_rad`` widens the cone and
+        lets stars just outside the frame in (a prior's error can bring them in)."""
+        R = rot.to_matrix(q)
+        boresight = R[2]  # the camera +z axis in ICRS: third row of R(q_cam_icrs)
+        half = self._half_diag_rad(cam) + margin_rad + 1e-3
         idx = np.array(self._tree.query_ball_point(boresight, 2 * np.sin(half / 2)),
                        dtype=np.int64)
         if len(idx) == 0:
-            return np.zeros((0, 2)), idx
-        v = rot.rotate(q, self.vectors[idx])
+            return np.zeros((0, 2)), idx, idx
+        v = self.vectors[idx] @ R.T
+        front = v[:, 2] > 0
+        idx, v = idx[front], v[front]
         pxy = cam.vectors_to_pixels(v)
-        inside = cam.in_frame(pxy)
-        return pxy[inside], self.ids[idx[inside]]
+        inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
+        return pxy[inside], self.ids[idx[inside]], idx[inside]
+
+    def _half_diag_rad(self, cam: Camera) -> float:
+        key = ("half_diag", cam.key())
+        val = self._memo.get(key)
+        if val is None:
+            val = 0.5 * np.radians(cam.diagonal_fov_deg)
+            self._memo[key] = val
+        return val
 
     def _solution(self, c: Candidate, counter: int, path: str,
                   cands: list[Candidate]) -> Solution:
@@ -622,6 +757,19 @@ class _Chance:
     @cached_property
     def geometry(self) -> list[tuple[int, int, float]]:
         return spot_geometry(self.angles)
+
+
+def _pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
+                 radius_px: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Each detection to its nearest predicted star within a radius, one-to-one."""
+    d, j = cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px)
+    det = np.flatnonzero(np.isfinite(d))
+    if len(det) == 0:
+        return det.astype(np.int64), det.astype(np.int64)
+    det = det[np.lexsort((det, d[det]))]
+    _, first = np.unique(j[det], return_index=True)
+    det = np.sort(det[first])
+    return det.astype(np.int64), pred_idx[j[det]].astype(np.int64)
 
 
 def _keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,

@@ -209,3 +209,82 @@ def test_six_star_pattern_alone_is_enough_evidence(cam):
         assert not sol.ok or attitude_error_deg(sol, q) < 0.05
         solved += sol.ok
     assert solved >= 8
+
+
+# --- tracking with a prior ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def wide():
+    cat = starid.Catalog.hipparcos(mag_limit=5.0, epoch=2025.0)
+    cam = starid.Camera.pinhole(512, 480, 25.84)
+    return cat, cam, starid.Solver(cat, cam)
+
+
+def perturbed(q, sigma_deg, rng):
+    return rot.multiply(rot.exp_map(rng.normal(0, np.radians(sigma_deg), 3)), q)
+
+
+def within_covariance(sol, q) -> bool:
+    lim = max(0.05, 5 * np.degrees(np.sqrt(np.max(np.linalg.eigvalsh(sol.covariance)))))
+    return attitude_error_deg(sol, q) < lim
+
+
+def test_tracking_accepts_two_and_three_star_frames_with_a_tight_prior(wide):
+    cat, cam, s = wide
+    rng = np.random.default_rng(5)
+    ok = 0
+    for _ in range(60):
+        xy, q = sky_frame(cat, cam, rng, sigma_px=0.3)
+        xy = xy[: int(rng.integers(2, 4))]
+        sol = s.solve(xy, prior=starid.Prior(perturbed(q, 0.05, rng), 0.05))
+        if sol.ok:
+            assert sol.mode == "tracking" and within_covariance(sol, q)
+            assert sol.p_false <= s.p_false_max_tracking
+            ok += 1
+    assert ok >= 57
+
+
+def test_tracking_with_a_wrong_prior_never_gives_a_wrong_fix(wide):
+    cat, cam, s = wide
+    rng = np.random.default_rng(6)
+    for _ in range(40):
+        xy, q = sky_frame(cat, cam, rng, sigma_px=0.3)
+        elsewhere = rot.q_cam_icrs_from_radec_roll(*rng.uniform(0, 2 * np.pi, 3))
+        sol = s.solve(xy, prior=starid.Prior(elsewhere, 0.1))
+        assert not sol.ok or within_covariance(sol, q)
+        if sol.ok:  # only through the lost-in-space fallback
+            assert sol.mode == "lost-in-space"
+
+
+def test_tracking_survives_a_prior_off_by_its_sigma_in_a_crowded_field(cat, cam, solver):
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        xy, q = sky_frame(cat, cam, rng, sigma_px=0.3)
+        sol = solver.solve(xy, prior=starid.Prior(perturbed(q, 0.3, rng), 0.3))
+        assert sol.ok and sol.mode == "tracking" and within_covariance(sol, q)
+
+
+def test_loose_prior_goes_straight_to_lost_in_space(wide):
+    cat, cam, s = wide
+    xy, q = sky_frame(cat, cam, np.random.default_rng(8), sigma_px=0.3)
+    sol = s.solve(xy, prior=starid.Prior(q, 5.0))
+    assert sol.ok and sol.mode == "lost-in-space"
+
+
+def test_random_detections_with_a_prior_are_not_accepted(wide):
+    _, cam, s = wide
+    rng = np.random.default_rng(9)
+    accepted = 0
+    for _ in range(200):
+        q = rot.q_cam_icrs_from_radec_roll(*rng.uniform(0, 2 * np.pi, 3))
+        xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (int(rng.integers(2, 12)), 2))
+        accepted += s.solve(xy, prior=starid.Prior(q, 0.05)).ok
+    assert accepted == 0
+
+
+def test_prior_validation():
+    with pytest.raises(ValueError, match="sigma_deg"):
+        starid.Prior(np.array([1.0, 0, 0, 0]), 0.0)
+    with pytest.raises(ValueError, match="quaternion"):
+        starid.Prior(np.array([np.nan, 0, 0, 0]), 1.0)
