@@ -79,6 +79,7 @@ def wahba(
         raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
     P = np.linalg.inv(F)
     pred = r @ R.T
-    res = np.arctan2(np.linalg.norm(rot.cross(pred, b), axis=1), np.sum(pred * b, axis=1))
+    chord = np.sqrt(np.sum((pred - b) ** 2, axis=1))
+    res = 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))  # exact, and cheaper than atan2
     q = rot.from_matrix(R, orthonormalize=False)
     return WahbaSolution(q, 0.5 * (P + P.T), res, float(np.sum(w * res**2)))

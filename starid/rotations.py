@@ -204,7 +204,10 @@ def _from_matrix_single(r: Array) -> Array:
     else:
         t = 2.0 * np.sqrt(max(1.0 - m00 - m11 + m22, 0.0))
         q = [(m10 - m01) / t, (m02 + m20) / t, (m12 + m21) / t, 0.25 * t]
-    return normalize(np.array(q))
+    n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) ** 0.5
+    lead = next((c for c in q if c != 0.0), 1.0)  # canonical sign, as in canonical()
+    s = (1.0 if lead > 0 else -1.0) / n
+    return np.array([q[0] * s, q[1] * s, q[2] * s, q[3] * s])
 
 
 def cross(a: ArrayLike, b: ArrayLike) -> Array:

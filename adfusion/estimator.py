@@ -1,0 +1,261 @@
+"""The step API for an attitude-control loop: one object owning a filter and a solver.
+
+``est.step(t, gyro=..., mag=..., frame=... or detections=...)`` advances the estimate to
+time ``t`` and folds in whatever measurements arrived, returning the current estimate
+with a record of what happened (which sensors were used, the star-ID mode, innovation
+NIS values, and every rejected input with its reason). Nothing is silently dropped.
+
+* **Gyro**: held from one step to the next (zero-order hold): at ``step(t)`` the filter
+  is propagated from the previous time to ``t`` with the last gyro sample, then the new
+  sample is stored.
+* **Star camera**: with an attitude estimate, the filter's prediction (mounted into the
+  camera frame, its 1-σ cone widened after each miss) is the solver's prior — tracking
+  mode, where two stars suffice; after ``max_misses`` misses in a row, or with no
+  estimate yet, lost-in-space. The first lost-in-space fix initialises the filter.
+* **Magnetometer**: a body-frame field vector with its ICRS reference, applied as a
+  direction update.
+
+Deterministic: the same inputs give bit-identical outputs (no clocks, no randomness).
+
+Example:
+    >>> import numpy as np
+    >>> import starid
+    >>> from adfusion.estimator import Estimator
+    >>> from adfusion.examples import example_frame
+    >>> ex = example_frame()
+    >>> cat = starid.Catalog.hipparcos(mag_limit=6.5)
+    >>> est = Estimator(starid.Solver(cat, ex.camera))
+    >>> rec = est.step(0.0, frame=ex.image)
+    >>> rec.star_mode, rec.fix_accepted, est.initialized
+    ('lost-in-space', True, True)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from adfusion.mekf import MEKF
+from starid import rotations as rot
+from starid.solver import Prior, Solution, Solver
+
+__all__ = ["Estimator", "StepRecord"]
+
+
+@dataclass
+class StepRecord:
+    """What one :meth:`Estimator.step` did, and the estimate after it."""
+
+    t: float
+    q_body_icrs: NDArray[np.float64] | None
+    bias_rad_s: NDArray[np.float64] | None
+    sigma_rad: NDArray[np.float64] | None  # sqrt(diag P): 3 attitude, 3 bias
+    sensors: list[str] = field(default_factory=list)
+    star_mode: str = ""  # "tracking" | "lost-in-space" | "" (no frame)
+    star_ok: bool = False
+    fix_accepted: bool = False
+    n_stars: int = 0
+    cone_deg: float | None = None
+    nis: dict[str, float] = field(default_factory=dict)
+    rejected: list[tuple[str, str]] = field(default_factory=list)  # (input, reason)
+    solution: Solution | None = None
+
+
+class Estimator:
+    """Filter + star identification, stepped by the caller (see module docstring).
+
+    Args:
+        solver: a :class:`starid.Solver` for the star camera (None: no camera).
+        q_body_cam: mounting, rotates camera-frame vectors into the body frame.
+        arw_rad_sqrt_s, rrw_rad_s_sqrt_s: gyro noise for the filter.
+        sigma_bias0_rad_s: initial 1-σ gyro bias uncertainty.
+        filter_factory: builds the filter from (q_body_icrs, sigma_attitude_rad,
+            sigma_bias_rad_s, arw, rrw); default :class:`adfusion.MEKF` — pass
+            :class:`adfusion.UKF` to swap.
+        q_body_icrs0, sigma_attitude0_rad: an initial attitude, if known (otherwise the
+            first lost-in-space fix initialises the filter).
+        max_misses: camera frames without an accepted fix before tracking gives way to
+            lost-in-space.
+        widen_per_miss: factor by which the tracking cone grows after each miss.
+        min_cone_deg: the smallest tracking σ handed to the solver (centroid noise, lens
+            residuals and timing make a perfectly confident prediction wrong).
+        detect: the detection function for ``frame=`` (default ``starid.detect``).
+    """
+
+    def __init__(
+        self,
+        solver: Solver | None,
+        q_body_cam: ArrayLike = rot.IDENTITY,
+        *,
+        arw_rad_sqrt_s: float = 1e-5,
+        rrw_rad_s_sqrt_s: float = 1e-7,
+        sigma_bias0_rad_s: float = np.radians(0.5) / 3600 * 100,
+        filter_factory: Callable | None = None,
+        q_body_icrs0: ArrayLike | None = None,
+        sigma_attitude0_rad: float = np.radians(1.0),
+        max_misses: int = 10,
+        widen_per_miss: float = 1.5,
+        min_cone_deg: float = 0.02,
+        detect: Callable | None = None,
+    ) -> None:
+        self.solver = solver
+        self.q_body_cam = rot.normalize(q_body_cam)
+        self.q_cam_body = rot.inverse(self.q_body_cam)
+        self.R_body_cam = rot.to_matrix(self.q_body_cam)
+        self.arw = float(arw_rad_sqrt_s)
+        self.rrw = float(rrw_rad_s_sqrt_s)
+        self.sigma_bias0 = float(sigma_bias0_rad_s)
+        self.filter_factory = filter_factory or MEKF
+        self.max_misses = int(max_misses)
+        self.widen_per_miss = float(widen_per_miss)
+        self.min_cone_deg = float(min_cone_deg)
+        self._detect = detect
+        self.filter = None
+        if q_body_icrs0 is not None:
+            self.filter = self._make_filter(rot.normalize(q_body_icrs0), sigma_attitude0_rad)
+        self.t: float | None = None
+        self._omega_hold: NDArray[np.float64] | None = None
+        self.misses = 0
+
+    @property
+    def initialized(self) -> bool:
+        return self.filter is not None
+
+    def _make_filter(self, q_body_icrs: NDArray, sigma_att_rad: float):
+        return self.filter_factory(q_body_icrs, sigma_att_rad, self.sigma_bias0, self.arw,
+                                   self.rrw)
+
+    # --- the step ---------------------------------------------------------------------
+
+    def step(
+        self,
+        t: float,
+        gyro: ArrayLike | None = None,
+        mag: tuple[ArrayLike, ArrayLike] | None = None,
+        frame: NDArray | str | None = None,
+        detections=None,
+    ) -> StepRecord:
+        """Advance to time ``t`` (s) and apply the measurements taken at ``t``.
+
+        ``gyro``: body rate (rad/s). ``mag``: (field in the body frame, the same field in
+        ICRS) in any common unit. ``frame``: an image (detected here) or ``detections``
+        (a :class:`starid.Detections` or an (N, 2) / (N, 3) array).
+        """
+        rec = StepRecord(t=float(t), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
+        if not np.isfinite(t):
+            rec.rejected.append(("time", f"non-finite time {t}"))
+            return self._finish(rec)
+        if self.t is not None and t < self.t:
+            rec.rejected.append(("time", f"time went backwards ({t} < {self.t}); "
+                                         "all inputs of this step ignored"))
+            return self._finish(rec)
+        self._propagate_to(float(t), rec)
+        if gyro is not None:
+            g = np.asarray(gyro, dtype=np.float64).reshape(-1)
+            if g.shape != (3,) or not np.all(np.isfinite(g)):
+                rec.rejected.append(("gyro", f"not a finite 3-vector: {g.tolist()}"))
+            else:
+                self._omega_hold = g
+                rec.sensors.append("gyro")
+        if frame is not None or detections is not None:
+            self._star_update(frame, detections, rec)
+        if mag is not None:
+            self._mag_update(mag, rec)
+        return self._finish(rec)
+
+    # --- pieces ---------------------------------------------------------------------------
+
+    def _propagate_to(self, t: float, rec: StepRecord) -> None:
+        if self.t is not None and self.filter is not None and t > self.t:
+            if self._omega_hold is not None:
+                self.filter.propagate(t - self.t, self._omega_hold)
+            else:  # no rate information: hold the attitude, let the covariance grow
+                self.filter.propagate(t - self.t, self.filter.bias_rad_s)
+        self.t = t
+
+    def _star_update(self, frame, detections, rec: StepRecord) -> None:
+        if self.solver is None:
+            rec.rejected.append(("camera", "no solver configured"))
+            return
+        if detections is None:
+            detect = self._detect
+            if detect is None:
+                import starid
+
+                detect = starid.detect
+            try:
+                detections = detect(frame, self.solver.camera)
+            except (ValueError, FileNotFoundError) as e:
+                rec.rejected.append(("camera", f"detection failed: {e}"))
+                return
+        rec.sensors.append("camera")
+        prior = None
+        if self.filter is not None and self.misses < self.max_misses:
+            q_cam_icrs = rot.multiply(self.q_cam_body, self.filter.q_body_icrs)
+            sigma = max(self.filter.search_cone_deg(k=1.0), self.min_cone_deg)
+            sigma *= self.widen_per_miss ** self.misses
+            rec.cone_deg = 3.0 * sigma
+            prior = Prior(q_cam_icrs, sigma)
+        try:
+            sol = self.solver.solve(detections, prior=prior)
+        except ValueError as e:
+            rec.rejected.append(("camera", f"bad detections: {e}"))
+            self.misses += 1
+            return
+        rec.solution = sol
+        rec.star_mode = sol.mode
+        rec.star_ok = sol.ok
+        rec.n_stars = len(sol.matches)
+        if not sol.ok:
+            rec.rejected.append(("star fix", sol.reason))
+            self.misses += 1
+            return
+        q_body_icrs = rot.multiply(self.q_body_cam, sol.q_cam_icrs)
+        cov_body = self.R_body_cam @ sol.covariance @ self.R_body_cam.T
+        if self.filter is None:
+            sigma0 = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_body))))
+            self.filter = self._make_filter(q_body_icrs, max(sigma0, 1e-7))
+            rec.fix_accepted = True
+            self.misses = 0
+            return
+        res = self.filter.update_attitude(q_body_icrs, cov_body)
+        rec.nis["star fix"] = float(res.nis)
+        if res.accepted:
+            rec.fix_accepted = True
+            self.misses = 0
+        else:
+            rec.rejected.append(("star fix", f"{sol.mode} fix rejected by the filter gate: "
+                                             f"{res.reason}"))
+            self.misses += 1
+
+    def _mag_update(self, mag, rec: StepRecord) -> None:
+        try:
+            b_body, r_icrs = (np.asarray(x, dtype=np.float64).reshape(3) for x in mag)
+        except (TypeError, ValueError):
+            rec.rejected.append(("mag", "expected (field_body, field_icrs), two 3-vectors"))
+            return
+        nb, nr = np.linalg.norm(b_body), np.linalg.norm(r_icrs)
+        if not (np.isfinite(nb) and np.isfinite(nr)) or nb == 0 or nr == 0:
+            rec.rejected.append(("mag", "zero-norm or non-finite field vector"))
+            return
+        if self.filter is None:
+            rec.rejected.append(("mag", "no attitude estimate yet: a single vector cannot "
+                                        "initialise one"))
+            return
+        rec.sensors.append("mag")
+        res = self.filter.update_vector(b_body / nb, r_icrs / nr, self.sigma_mag_rad)
+        rec.nis["mag"] = float(res.nis)
+        if not res.accepted:
+            rec.rejected.append(("mag", res.reason))
+
+    sigma_mag_rad: float = np.radians(1.0)
+
+    def _finish(self, rec: StepRecord) -> StepRecord:
+        if self.filter is not None:
+            rec.q_body_icrs = np.array(self.filter.q_body_icrs)
+            rec.bias_rad_s = np.array(self.filter.bias_rad_s)
+            rec.sigma_rad = np.sqrt(np.diag(self.filter.P))
+        return rec
