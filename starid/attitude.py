@@ -26,7 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from starid import rotations as rot
 
-__all__ = ["WahbaSolution", "wahba"]
+__all__ = ["WahbaSolution", "wahba", "wahba_unit"]
 
 
 @dataclass(frozen=True)
@@ -62,24 +62,41 @@ def wahba(
         raise ValueError(f"Wahba's problem needs at least 2 direction pairs, got {len(b)}")
     if not (np.all(np.isfinite(b)) and np.all(np.isfinite(r))):
         raise ValueError("direction vectors must be finite")
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    r = r / np.linalg.norm(r, axis=1, keepdims=True)
-    sigma = np.broadcast_to(np.asarray(sigma_rad, dtype=np.float64), (len(b),))
+    sigma = np.asarray(sigma_rad, dtype=np.float64)
     if np.any(~np.isfinite(sigma)) or np.any(sigma <= 0):
         raise ValueError("sigma_rad must be positive and finite")
-    w = 1.0 / sigma**2
-    B = (w[:, None] * b).T @ r  # attitude profile matrix Σ w b rᵀ
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    r = r / np.linalg.norm(r, axis=1, keepdims=True)
+    return wahba_unit(b, r, sigma)
+
+
+def wahba_unit(b: NDArray[np.float64], r: NDArray[np.float64],
+               sigma_rad: float | NDArray[np.float64]) -> WahbaSolution:
+    """:func:`wahba` without input checks, for unit vectors already validated (the
+    solver's hot path). ``sigma_rad`` is a scalar or one value per pair."""
+    if np.ndim(sigma_rad) == 0:
+        w = 1.0 / float(sigma_rad) ** 2
+        B = w * (b.T @ r)  # attitude profile matrix Σ w b rᵀ
+        F = w * (len(b) * np.eye(3) - b.T @ b)  # Σ w (I − b bᵀ)
+        wres = w
+    else:
+        wv = 1.0 / np.asarray(sigma_rad, dtype=np.float64) ** 2
+        wb = wv[:, None] * b
+        B = wb.T @ r
+        F = np.sum(wv) * np.eye(3) - wb.T @ b
+        wres = wv
     u, _, vt = np.linalg.svd(B)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        u[:, 2] = -u[:, 2]
     R = u @ vt
-    F = np.sum(w) * np.eye(3) - (w[:, None] * b).T @ b  # Σ w (I − b bᵀ)
-    ev = np.linalg.eigvalsh(F)
-    if ev[0] <= 1e-12 * ev[-1]:
+    (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = R.tolist()
+    if a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0) + a2 * (b0 * c1 - b1 * c0) < 0:
+        u[:, 2] = -u[:, 2]  # nearest proper rotation, not a reflection
+        R = u @ vt
+    lam, vec = np.linalg.eigh(F)
+    if lam[0] <= 1e-12 * lam[-1]:
         raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
-    P = np.linalg.inv(F)
+    P = (vec / lam) @ vec.T  # F⁻¹ from its eigendecomposition, symmetric by construction
     pred = r @ R.T
     chord = np.sqrt(np.sum((pred - b) ** 2, axis=1))
     res = 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))  # exact, and cheaper than atan2
     q = rot.from_matrix(R, orthonormalize=False)
-    return WahbaSolution(q, 0.5 * (P + P.T), res, float(np.sum(w * res**2)))
+    return WahbaSolution(q, P, res, float(np.sum(wres * res**2)))

@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from starid import rotations as rot
-from starid.attitude import wahba
+from starid.attitude import wahba_unit
 from starid.calibrate import fit_camera
 from starid.camera import Camera
 from starid.index import PatternIndex
@@ -494,7 +494,9 @@ class Solver:
         # a medium radius, then tighten through two fits
         medium = max(tight, 0.3 * wide)
         det_i, cat_i = _pair_within(xy, pred_xy + shift, pred_idx, medium)
-        for _ in range(3):
+        predicted = np.zeros(len(self.vectors), dtype=bool)
+        predicted[pred_idx] = True
+        for _ in range(2):
             if len(det_i) < 2:
                 break
             R = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
@@ -502,14 +504,14 @@ class Solver:
                 return Solution(False, "tracked stars are collinear", mode="tracking")
             det_i, cat_i = self._associate_icrs(b_all, R, tight * cam.pixel_scale_rad)
             # keep only stars the prior predicted (tracking never jumps elsewhere)
-            keep = np.isin(cat_i, pred_idx)
+            keep = predicted[cat_i]
             det_i, cat_i = det_i[keep], cat_i[keep]
         if len(det_i) < 2:
             return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
                             mode="tracking")
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
         try:
-            w = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+            w = wahba_unit(b_all[det_i], self.vectors[cat_i], sigma)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
         offset = float(rot.angle_between(w.q_cam_icrs, q0))
@@ -660,7 +662,7 @@ class Solver:
             if not _keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
                 return None
         try:
-            final = wahba(b_all[det_i], self.vectors[cat_i], sigma)
+            final = wahba_unit(b_all[det_i], self.vectors[cat_i], sigma)
         except ValueError:
             return None
         k_other = len(det_i) - len(sel)
@@ -720,12 +722,12 @@ class Solver:
         return pxy[inside], self.ids[idx[inside]], idx[inside]
 
     def _half_diag_rad(self, cam: Camera) -> float:
-        key = ("half_diag", cam.key())
-        val = self._memo.get(key)
-        if val is None:
-            val = 0.5 * np.radians(cam.diagonal_fov_deg)
-            self._memo[key] = val
-        return val
+        if cam is self.camera:  # the tracking hot path: no key building
+            val = self._memo.get("half_diag")
+            if val is None:
+                val = self._memo["half_diag"] = 0.5 * np.radians(cam.diagonal_fov_deg)
+            return val
+        return 0.5 * np.radians(cam.diagonal_fov_deg)
 
     def _solution(self, c: Candidate, counter: int, path: str,
                   cands: list[Candidate]) -> Solution:
