@@ -597,13 +597,7 @@ class Solver:
         """Detections ↔ catalogue stars within a radius, at attitude R (cam ← icrs): each
         detection's nearest star, one-to-one (a star claimed twice goes to the closer)."""
         d, j = self._tree.query(b_all @ R, distance_upper_bound=2 * np.sin(radius_rad / 2))
-        det = np.flatnonzero(np.isfinite(d))
-        if len(det) == 0:
-            return det.astype(np.int64), det.astype(np.int64)
-        det = det[np.lexsort((det, d[det]))]
-        _, first = np.unique(j[det], return_index=True)
-        det = np.sort(det[first])
-        return det.astype(np.int64), j[det].astype(np.int64)
+        return _one_to_one(d, j)
 
     def _quick_check(self, b_all: NDArray, sel: NDArray, assign: NDArray, cam: Camera,
                      chance: _Chance) -> tuple[float, NDArray, float, NDArray, NDArray] | None:
@@ -764,14 +758,21 @@ class _Chance:
 def _pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
                  radius_px: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     """Each detection to its nearest predicted star within a radius, one-to-one."""
-    d, j = cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px)
+    det, j = _one_to_one(*cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px))
+    return det, pred_idx[j].astype(np.int64)
+
+
+def _one_to_one(d: NDArray, j: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """From a nearest-neighbour query (distance ∞ = none within the bound): detections
+    with a match, each target kept by its closest detection (ties to the lower index, so
+    the result does not depend on timing); returns (detection indices, targets)."""
     det = np.flatnonzero(np.isfinite(d))
     if len(det) == 0:
         return det.astype(np.int64), det.astype(np.int64)
     det = det[np.lexsort((det, d[det]))]
     _, first = np.unique(j[det], return_index=True)
     det = np.sort(det[first])
-    return det.astype(np.int64), pred_idx[j[det]].astype(np.int64)
+    return det.astype(np.int64), j[det].astype(np.int64)
 
 
 def _keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,
