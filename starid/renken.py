@@ -237,6 +237,7 @@ def simulate_cell(catalog, mag_limit: float, tol_deg: float, n_frames: int, seed
     from starid.camera import Camera
     from starid.index import PatternIndex
     from starid.nstar import closest_pair_first, match_indexed
+    from starid.view import stars_in_view
 
     cam = Camera.renken()
     app = np.radians(0.051)
@@ -246,13 +247,8 @@ def simulate_cell(catalog, mag_limit: float, tol_deg: float, n_frames: int, seed
     counts = dict.fromkeys(("clear", "few", "miss", "unique", "multiple", "wrong", "crit"), 0)
     for a, d, w in eq_8_1_attitudes(rng, n_frames):
         q = rot.q_cam_icrs_from_radec_roll(a, d, w)
-        vc = rot.rotate(q, catalog.vectors)
-        front = np.flatnonzero(vc[:, 2] > 0)
-        xy = cam.vectors_to_pixels(vc[front])
-        inside = cam.in_frame(xy)
-        stars, xy = front[inside], np.round(xy[inside], 1)
-        order = np.argsort(catalog.mag[stars], kind="stable")
-        stars, xy = stars[order], xy[order]
+        stars, xy = stars_in_view(catalog, cam, q)
+        xy = np.round(xy, 1)  # his centroids have 0.1 px resolution
         if len(stars) < 3:
             counts["few"] += 1
             continue

@@ -10,6 +10,7 @@ from adfusion.estimator import Estimator
 from sensors.dynamics import simulate_rate_profile
 from sensors.gyro import GyroModel
 from starid import rotations as rot
+from starid.view import stars_in_view
 
 FPS = 30.0
 GYRO_HZ = 200.0
@@ -34,12 +35,7 @@ def scenario():
 
 
 def centroids(cat, cam, q_cam_icrs, rng, sigma_px=0.3):
-    v = rot.rotate(q_cam_icrs, cat.vectors)
-    front = np.flatnonzero(v[:, 2] > 0)
-    xy = cam.vectors_to_pixels(v[front])
-    inside = cam.in_frame(xy)
-    order = np.argsort(cat.mag[front][inside], kind="stable")
-    xy = xy[inside][order]
+    _, xy = stars_in_view(cat, cam, q_cam_icrs)
     return xy + rng.normal(0, sigma_px, xy.shape), len(xy)
 
 

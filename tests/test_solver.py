@@ -8,6 +8,7 @@ import pytest
 
 import starid
 from starid import rotations as rot
+from starid.view import stars_in_view
 
 
 @pytest.fixture(scope="module")
@@ -31,11 +32,8 @@ def sky_frame(cat, cam, rng, sigma_px=0.3, n_false=0, drop=0.0, mag_noise=0.1):
     q = rot.q_cam_icrs_from_radec_roll(rng.uniform(0, 2 * np.pi),
                                        np.arcsin(rng.uniform(-1, 1)),
                                        rng.uniform(0, 2 * np.pi))
-    v = rot.rotate(q, cat.vectors)
-    front = np.flatnonzero(v[:, 2] > 0)
-    xy = cam.vectors_to_pixels(v[front])
-    inside = cam.in_frame(xy)
-    xy, mag = xy[inside], cat.mag[front][inside] + rng.normal(0, mag_noise, inside.sum())
+    idx, xy = stars_in_view(cat, cam, q, brightest_first=False)
+    mag = cat.mag[idx] + rng.normal(0, mag_noise, len(idx))
     keep = rng.uniform(size=len(xy)) >= drop
     xy, mag = xy[keep], mag[keep]
     xy = xy + rng.normal(0, sigma_px, xy.shape)
