@@ -114,11 +114,10 @@ def chirality_of(b: NDArray[np.float64], min_altitude_rad: float = 0.0) -> int:
 def closest_pair_first(angles: NDArray[np.float64]) -> NDArray[np.int64]:
     """Renken's closest-stars order: the closest pair first (the brighter of the two
     first), the others in their original (brightness) order (renken.md §4.11)."""
-    a = np.asarray(angles, dtype=np.float64)
+    a = np.array(angles, dtype=np.float64)
     n = len(a)
-    iu = np.triu_indices(n, 1)
-    k = int(np.argmin(a[iu]))
-    i, j = int(iu[0][k]), int(iu[1][k])
+    a[np.tril_indices(n)] = np.inf  # only i < j: the first index found is the brighter
+    i, j = divmod(int(np.argmin(a)), n)
     return np.array([i, j, *[m for m in range(n) if m not in (i, j)]], dtype=np.int64)
 
 

@@ -27,6 +27,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -300,6 +301,14 @@ def small_angle(dtheta: ArrayLike) -> Array:
 def angle_between(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64] | float:
     """Angle (rad) of the rotation taking q to p: ``|log(p ⊗ q⁻¹)|``, in [0, π]."""
     p, q = _as_quat(p), _as_quat(q)
+    if p.ndim == 1 and q.ndim == 1:  # scalar fast path (solver, filters)
+        pl, ql = p.tolist(), q.tolist()
+        npn = sum(x * x for x in pl) ** 0.5
+        nq = sum(x * x for x in ql) ** 0.5
+        sgn = 1.0 if sum(a * b for a, b in zip(pl, ql, strict=True)) >= 0 else -1.0
+        dm = sum((a / npn - sgn * b / nq) ** 2 for a, b in zip(pl, ql, strict=True)) ** 0.5
+        dp = sum((a / npn + sgn * b / nq) ** 2 for a, b in zip(pl, ql, strict=True)) ** 0.5
+        return 4.0 * math.atan2(dm, dp)
     p = p / np.linalg.norm(p, axis=-1, keepdims=True)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     q = q * np.where(np.sum(p * q, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)

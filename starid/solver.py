@@ -315,20 +315,22 @@ class Solver:
             xy = arr[:, :2]
         if len(xy) < min_count:
             return xy, f"too few detections ({len(xy)} < {min_count})"
-        bad = ~np.isfinite(xy).all(axis=1)
-        if bad.any():
+        if not np.isfinite(xy).all():  # cheap test first, details only when it fails
+            bad = ~np.isfinite(xy).all(axis=1)
             return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at row " \
                        f"{int(np.flatnonzero(bad)[0])}"
         use = xy[: self.max_detections]
         d2 = np.sum((use[:, None, :] - use[None, :, :]) ** 2, axis=-1)
-        np.fill_diagonal(d2, np.inf)
-        dup = np.argwhere(d2 < 1e-12)
-        if len(dup):
+        d2.flat[:: len(use) + 1] = np.inf
+        if d2.min() < 1e-12:
+            dup = np.argwhere(d2 < 1e-12)
             return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
                        f"{int(dup[0, 1])}"
-        outside = ~self.camera.in_frame(use, margin=-0.5 * max(self.camera.width,
-                                                               self.camera.height))
-        if outside.any():
+        slack = 0.5 * max(self.camera.width, self.camera.height)
+        lo, hi = use.min(axis=0), use.max(axis=0)
+        if (lo < -0.5 - slack).any() or hi[0] > self.camera.width - 0.5 + slack \
+                or hi[1] > self.camera.height - 0.5 + slack:
+            outside = ~self.camera.in_frame(use, margin=-slack)
             return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies far " \
                        "outside the frame"
         return use, ""
@@ -795,6 +797,8 @@ def _rotation_from_pairs(b: NDArray, r: NDArray) -> NDArray | None:
 
 def _distinct(cands: list[Candidate], tol_rad: float) -> list[Candidate]:
     """Collapse candidates with the same attitude (e.g. a swapped close pair)."""
+    if len(cands) <= 1:
+        return list(cands)
     out: list[Candidate] = []
     for c in sorted(cands, key=lambda c: c.p_false):
         if all(rot.angle_between(c.q_cam_icrs, o.q_cam_icrs) > tol_rad for o in out):
