@@ -1,0 +1,286 @@
+"""Foxglove well-known messages (protobuf) ⇄ numpy/dict payloads: the quaternion-order boundary.
+
+Inside adfusion quaternions are Hamilton ``[w, x, y, z]``; Foxglove stores ``x, y, z, w``.
+This module is the only place that reorders them. Every ``encode_*`` returns a protobuf
+message from ``foxglove-schemas-protobuf``; :func:`decode` turns one back into the payload the
+reader yields (image → ``numpy`` array, everything else → ``dict`` with ``q_wxyz`` arrays).
+
+Example:
+    >>> import numpy as np
+    >>> from logs import foxglove as fg
+    >>> msg = fg.encode_pose(1_500_000_000, np.array([0.6, 0.8, 0.0, 0.0]), "icrs")
+    >>> (msg.pose.orientation.x, msg.pose.orientation.w)
+    (0.8, 0.6)
+    >>> fg.decode("foxglove.PoseInFrame", msg.SerializeToString())["q_wxyz"].tolist()
+    [0.6, 0.8, 0.0, 0.0]
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import cv2
+import numpy as np
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
+from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.FrameTransforms_pb2 import FrameTransforms
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+from foxglove_schemas_protobuf.KeyValuePair_pb2 import KeyValuePair
+from foxglove_schemas_protobuf.Point2_pb2 import Point2
+from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
+from google.protobuf.timestamp_pb2 import Timestamp
+
+ArrayLike = Any
+
+# Colours of the annotation layers (RGBA, 0..1) and the ``role`` tag that the reader keys on.
+DETECTION_COLOR = (1.0, 0.85, 0.0, 1.0)
+IDENTIFIED_COLOR = (0.2, 1.0, 0.2, 1.0)
+PREDICTED_COLOR = (0.0, 0.8, 1.0, 1.0)
+OCCUPIED_COLOR = (1.0, 0.25, 0.25, 1.0)
+IDENTIFIED_DIAMETER_PX = 14.0
+
+MESSAGE_TYPES: dict[str, type] = {
+    cls.DESCRIPTOR.full_name: cls
+    for cls in (
+        RawImage,
+        CompressedImage,
+        ImageAnnotations,
+        PoseInFrame,
+        FrameTransforms,
+        CameraCalibration,
+    )
+}
+"""Foxglove schema name → protobuf class, for the types this project writes and decodes."""
+
+
+def _stamp(t_ns: int) -> Timestamp:
+    return Timestamp(seconds=t_ns // 1_000_000_000, nanos=t_ns % 1_000_000_000)
+
+
+def _color(rgba: Sequence[float]) -> Color:
+    return Color(r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
+
+
+def _meta(**kv: str) -> list[KeyValuePair]:
+    return [KeyValuePair(key=k, value=v) for k, v in kv.items()]
+
+
+def _points(xy: ArrayLike) -> list[Point2]:
+    arr = np.asarray(xy, dtype=float).reshape(-1, 2)
+    return [Point2(x=x, y=y) for x, y in arr.tolist()]
+
+
+def _quat_xyzw(q_wxyz: ArrayLike) -> dict[str, float]:
+    w, x, y, z = (float(v) for v in np.asarray(q_wxyz, dtype=float).reshape(4))
+    return {"x": x, "y": y, "z": z, "w": w}
+
+
+def _q_wxyz(q: Any) -> np.ndarray:
+    return np.array([q.w, q.x, q.y, q.z], dtype=float)
+
+
+def encode_raw_image(t_ns: int, image: np.ndarray, frame_id: str) -> RawImage:
+    """``foxglove.RawImage``: uint8 → ``mono8``, uint16 → ``mono16`` (little-endian),
+    (H, W, 3) uint8 → ``bgr8`` (OpenCV order)."""
+    img = np.asarray(image)
+    if img.dtype == np.uint8 and img.ndim == 2:
+        encoding, data = "mono8", img
+    elif img.dtype == np.uint16 and img.ndim == 2:
+        encoding, data = "mono16", img.astype("<u2", copy=False)
+    elif img.dtype == np.uint8 and img.ndim == 3 and img.shape[2] == 3:
+        encoding, data = "bgr8", img
+    else:
+        raise ValueError(f"unsupported image {img.dtype} {img.shape}: want uint8/uint16 (H, W)")
+    data = np.ascontiguousarray(data)
+    height, width = img.shape[:2]
+    return RawImage(
+        timestamp=_stamp(t_ns),
+        frame_id=frame_id,
+        width=width,
+        height=height,
+        encoding=encoding,
+        step=data.strides[0],
+        data=data.tobytes(),
+    )
+
+
+def encode_png_image(t_ns: int, image: np.ndarray, frame_id: str) -> CompressedImage:
+    """``foxglove.CompressedImage`` with ``format="png"`` (lossless; uint8 or uint16)."""
+    ok, buf = cv2.imencode(".png", np.asarray(image))
+    if not ok:
+        raise ValueError(f"PNG encoding failed for image {image.dtype} {image.shape}")
+    return CompressedImage(timestamp=_stamp(t_ns), frame_id=frame_id, data=buf.tobytes(),
+                           format="png")
+
+
+def encode_annotations(
+    t_ns: int,
+    detections_xy: ArrayLike | None = None,
+    identified: Iterable[tuple[float, float, Any]] = (),
+    predicted_xy: ArrayLike | None = None,
+    occupied: Iterable[ArrayLike] = (),
+) -> ImageAnnotations:
+    """``foxglove.ImageAnnotations`` in four layers, each tagged ``role`` in its metadata:
+    detections (yellow points), identified stars (green circles + id text), projected
+    catalogue (cyan points), occupied regions (red closed polygons, e.g. the tether mask)."""
+    stamp = _stamp(t_ns)
+    msg = ImageAnnotations()
+    if detections_xy is not None:
+        msg.points.append(PointsAnnotation(
+            timestamp=stamp, type=PointsAnnotation.POINTS, points=_points(detections_xy),
+            outline_color=_color(DETECTION_COLOR), thickness=5.0,
+            metadata=_meta(role="detections")))
+    if predicted_xy is not None:
+        msg.points.append(PointsAnnotation(
+            timestamp=stamp, type=PointsAnnotation.POINTS, points=_points(predicted_xy),
+            outline_color=_color(PREDICTED_COLOR), thickness=3.0,
+            metadata=_meta(role="predicted")))
+    for polygon in occupied:
+        msg.points.append(PointsAnnotation(
+            timestamp=stamp, type=PointsAnnotation.LINE_LOOP, points=_points(polygon),
+            outline_color=_color(OCCUPIED_COLOR), thickness=1.5,
+            metadata=_meta(role="occupied")))
+    green = _color(IDENTIFIED_COLOR)
+    for x, y, label in identified:
+        text = str(label)
+        msg.circles.append(CircleAnnotation(
+            timestamp=stamp, position=Point2(x=float(x), y=float(y)),
+            diameter=IDENTIFIED_DIAMETER_PX, thickness=1.5, outline_color=green,
+            metadata=_meta(role="identified", label=text)))
+        msg.texts.append(TextAnnotation(
+            timestamp=stamp,
+            position=Point2(x=float(x) + IDENTIFIED_DIAMETER_PX, y=float(y) - 4.0),
+            text=text, font_size=12.0, text_color=green,
+            background_color=_color((0.0, 0.0, 0.0, 0.5)), metadata=_meta(role="label")))
+    msg.timestamp.CopyFrom(stamp)
+    return msg
+
+
+def encode_pose(t_ns: int, q_wxyz: ArrayLike, frame_id: str,
+                position: ArrayLike = (0.0, 0.0, 0.0)) -> PoseInFrame:
+    """``foxglove.PoseInFrame``: orientation of the body *in* ``frame_id`` (rotates body
+    vectors into ``frame_id``)."""
+    px, py, pz = (float(v) for v in np.asarray(position, dtype=float).reshape(3))
+    msg = PoseInFrame(timestamp=_stamp(t_ns), frame_id=frame_id)
+    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = px, py, pz
+    for k, v in _quat_xyzw(q_wxyz).items():
+        setattr(msg.pose.orientation, k, v)
+    return msg
+
+
+def encode_transforms(
+    t_ns: int, transforms: Iterable[tuple[str, str, ArrayLike, ArrayLike]]
+) -> FrameTransforms:
+    """``foxglove.FrameTransforms`` from ``(parent, child, q_parent_child, translation)``:
+    the rotation maps child-frame vectors into the parent frame (Foxglove's convention)."""
+    msg = FrameTransforms()
+    stamp = _stamp(t_ns)
+    for parent, child, q_wxyz, translation in transforms:
+        tf = FrameTransform(timestamp=stamp, parent_frame_id=parent, child_frame_id=child)
+        tx, ty, tz = (float(v) for v in np.asarray(translation, dtype=float).reshape(3))
+        tf.translation.x, tf.translation.y, tf.translation.z = tx, ty, tz
+        for k, v in _quat_xyzw(q_wxyz).items():
+            setattr(tf.rotation, k, v)
+        msg.transforms.append(tf)
+    return msg
+
+
+def encode_calibration(t_ns: int, width: int, height: int, K: ArrayLike, D: ArrayLike,
+                       frame_id: str) -> CameraCalibration:
+    """``foxglove.CameraCalibration`` with OpenCV's distortion (``plumb_bob`` for up to five
+    coefficients, ``rational_polynomial`` for eight), ``R = I`` and ``P = [K | 0]``."""
+    k = np.asarray(K, dtype=float).reshape(3, 3)
+    d = np.asarray(D, dtype=float).reshape(-1)
+    model = "rational_polynomial" if d.size > 5 else "plumb_bob"
+    p = np.hstack([k, np.zeros((3, 1))])
+    return CameraCalibration(
+        timestamp=_stamp(t_ns), frame_id=frame_id, width=int(width), height=int(height),
+        distortion_model=model, D=d.tolist(), K=k.reshape(-1).tolist(),
+        R=np.eye(3).reshape(-1).tolist(), P=p.reshape(-1).tolist())
+
+
+def _raw_image_array(msg: RawImage) -> np.ndarray:
+    enc = msg.encoding
+    if enc in ("mono8", "8UC1"):
+        dtype, channels = np.dtype(np.uint8), 1
+    elif enc in ("mono16", "16UC1"):
+        dtype, channels = np.dtype("<u2"), 1
+    elif enc in ("bgr8", "rgb8"):
+        dtype, channels = np.dtype(np.uint8), 3
+    else:
+        raise ValueError(f"RawImage encoding {enc!r} is not supported")
+    row = msg.width * channels
+    flat = np.frombuffer(msg.data, dtype=dtype)
+    step = msg.step // dtype.itemsize if msg.step else row
+    img = flat.reshape(msg.height, step)[:, :row]
+    if channels == 3:
+        img = img.reshape(msg.height, msg.width, 3)
+        if enc == "rgb8":
+            img = img[:, :, ::-1]
+    return img.astype(np.uint16 if dtype.itemsize == 2 else np.uint8)
+
+
+def _annotations_dict(msg: ImageAnnotations) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "detections_xy": np.zeros((0, 2)), "predicted_xy": np.zeros((0, 2)),
+        "identified": [], "occupied": [], "points": [], "circles": [], "texts": [],
+    }
+    for p in msg.points:
+        xy = np.array([(pt.x, pt.y) for pt in p.points], dtype=float).reshape(-1, 2)
+        role = {kv.key: kv.value for kv in p.metadata}.get("role")
+        if role == "detections":
+            out["detections_xy"] = xy
+        elif role == "predicted":
+            out["predicted_xy"] = xy
+        elif role == "occupied":
+            out["occupied"].append(xy)
+        else:
+            out["points"].append(xy)
+    for c in msg.circles:
+        meta = {kv.key: kv.value for kv in c.metadata}
+        if meta.get("role") == "identified":
+            out["identified"].append((c.position.x, c.position.y, meta.get("label", "")))
+        else:
+            out["circles"].append((c.position.x, c.position.y, c.diameter))
+    for t in msg.texts:
+        if {kv.key: kv.value for kv in t.metadata}.get("role") != "label":
+            out["texts"].append((t.position.x, t.position.y, t.text))
+    return out
+
+
+def decode(schema_name: str, data: bytes) -> Any:
+    """Payload of a protobuf-encoded Foxglove message (see the module docstring)."""
+    cls = MESSAGE_TYPES[schema_name]
+    msg = cls.FromString(data)
+    if isinstance(msg, RawImage):
+        return _raw_image_array(msg)
+    if isinstance(msg, CompressedImage):
+        img = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"cannot decode a {msg.format!r} CompressedImage")
+        return img
+    if isinstance(msg, ImageAnnotations):
+        return _annotations_dict(msg)
+    if isinstance(msg, PoseInFrame):
+        pos = msg.pose.position
+        return {"frame_id": msg.frame_id, "q_wxyz": _q_wxyz(msg.pose.orientation),
+                "position": np.array([pos.x, pos.y, pos.z])}
+    if isinstance(msg, FrameTransforms):
+        return {"transforms": [
+            {"parent": tf.parent_frame_id, "child": tf.child_frame_id,
+             "q_wxyz": _q_wxyz(tf.rotation),
+             "translation": np.array([tf.translation.x, tf.translation.y, tf.translation.z])}
+            for tf in msg.transforms]}
+    assert isinstance(msg, CameraCalibration)
+    return {"frame_id": msg.frame_id, "width": msg.width, "height": msg.height,
+            "distortion_model": msg.distortion_model, "D": np.array(msg.D, dtype=float),
+            "K": np.array(msg.K, dtype=float).reshape(3, 3),
+            "R": np.array(msg.R, dtype=float).reshape(3, 3),
+            "P": np.array(msg.P, dtype=float).reshape(3, 4)}

@@ -1,0 +1,84 @@
+"""JSON helpers for the ``logs`` boundary: numpy → JSON values, metadata string maps.
+
+MCAP metadata maps strings to strings; :func:`encode_metadata` keeps plain strings readable in
+Foxglove and JSON-encodes everything else so that :func:`decode_metadata` restores it exactly.
+
+Example:
+    >>> from logs.jsonio import decode_metadata, encode_metadata
+    >>> enc = encode_metadata({"scenario": "oedipus", "seed": 7, "note": "42"})
+    >>> enc
+    {'scenario': 'oedipus', 'seed': '7', 'note': '"42"'}
+    >>> decode_metadata(enc) == {"scenario": "oedipus", "seed": 7, "note": "42"}
+    True
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+
+def to_jsonable(value: Any) -> Any:
+    """Plain-Python copy of ``value``: numpy arrays → lists, numpy scalars → numbers, tuples →
+    lists, non-finite floats → ``None`` (JSON has no NaN; JavaScript's ``JSON.parse`` rejects it).
+
+    Example:
+        >>> import numpy as np
+        >>> to_jsonable({"q": np.array([1.0, 0.0, 0.0, 0.0]), "nis": float("nan")})
+        {'q': [1.0, 0.0, 0.0, 0.0], 'nis': None}
+    """
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, str | bool | int) or value is None:
+        return value
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
+            return to_jsonable(value.astype(object).tolist())
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return to_jsonable(value.item())
+    if isinstance(value, Mapping):
+        return {str(k): to_jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [to_jsonable(v) for v in value]
+    raise TypeError(f"cannot write {type(value).__name__} as JSON: {value!r}")
+
+
+def dumps(value: Any) -> str:
+    """Compact, strict JSON text of ``value`` (after :func:`to_jsonable`)."""
+    return json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
+
+
+def _parses_as_json(text: str) -> bool:
+    try:
+        json.loads(text)
+    except ValueError:
+        return False
+    return True
+
+
+def encode_metadata(data: Mapping[str, Any]) -> dict[str, str]:
+    """String map for an MCAP metadata record: strings stay as they are unless they would read
+    back as another JSON value (then they are JSON-quoted); everything else is JSON text."""
+    out: dict[str, str] = {}
+    for key, value in data.items():
+        if isinstance(value, str) and not _parses_as_json(value):
+            out[str(key)] = value
+        else:
+            out[str(key)] = dumps(value)
+    return out
+
+
+def decode_metadata(data: Mapping[str, str]) -> dict[str, Any]:
+    """Inverse of :func:`encode_metadata` (values that are not JSON stay strings)."""
+    out: dict[str, Any] = {}
+    for key, text in data.items():
+        try:
+            out[key] = json.loads(text)
+        except ValueError:
+            out[key] = text
+    return out

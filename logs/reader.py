@@ -1,0 +1,340 @@
+"""Read an MCAP log into time-ordered :class:`~logs.message.Message` events, surviving damage.
+
+The reader walks the data section record by record (it does not trust the summary at the end,
+which a killed writer never wrote), checks every chunk (decompression and CRC), and stops at the
+first record that is cut short or corrupt. Everything before that point is read; the point
+itself is reported as a :class:`ReadProblem` (byte offset, file size, last good time), both as
+``reader.problem`` and as a :class:`McapReadWarning`. Messages are then merged across chunks in
+log-time order (ties in file order), decompressing a chunk only when its turn comes.
+
+Payloads: images → ``numpy`` arrays, Foxglove poses/transforms/calibration/annotations → dicts
+(:func:`logs.foxglove.decode`; quaternions ``[w, x, y, z]``), JSON → dicts, other protobuf →
+dicts (``MessageToDict``), anything else → the raw bytes.
+
+Example:
+    >>> import os, tempfile
+    >>> from logs import LogWriter, McapLogReader
+    >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
+    >>> with LogWriter(path) as log:
+    ...     log.write_json("/mag", 0.02, {"b_body": [1.0, 2.0, 3.0]})
+    ...     log.write_json("/mag", 0.01, {"b_body": [0.0, 2.0, 3.0]})
+    >>> reader = McapLogReader(path)
+    >>> [(m.t_s, m.payload["b_body"][0]) for m in reader], reader.problem
+    ([(0.01, 0.0), (0.02, 1.0)], None)
+"""
+
+from __future__ import annotations
+
+import heapq
+import io
+import json
+import os
+import struct
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Chunk, Metadata, Schema
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
+
+from logs import foxglove as fg
+from logs.jsonio import decode_metadata
+from logs.message import Message
+
+MAGIC = b"\x89MCAP0\r\n"
+_RECORD_HEADER = struct.Struct("<BQ")
+
+
+class McapReadWarning(UserWarning):
+    """An MCAP input was truncated or corrupt; the message says where."""
+
+
+@dataclass(frozen=True)
+class ReadProblem:
+    """Where an MCAP input broke.
+
+    Attributes:
+        path: the file.
+        offset: byte offset of the first record that could not be read.
+        file_size: size of the file in bytes.
+        last_good_t_s: latest message time before the break (``None`` if nothing was read).
+        good_chunks: complete chunks read before the break.
+        reason: what was wrong there.
+    """
+
+    path: str
+    offset: int
+    file_size: int
+    last_good_t_s: float | None
+    good_chunks: int
+    reason: str
+
+    def __str__(self) -> str:
+        last = ("no messages before it" if self.last_good_t_s is None
+                else f"messages up to t = {self.last_good_t_s:.6f} s were read")
+        return (f"{self.path}: broken at byte {self.offset} of {self.file_size} "
+                f"({self.reason}); {last} from {self.good_chunks} complete chunk(s)")
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """A channel with its schema (``schema_name`` is e.g. ``foxglove.RawImage``)."""
+
+    id: int
+    topic: str
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes = field(repr=False)
+
+
+@dataclass(frozen=True)
+class _ChunkRef:
+    offset: int
+    length: int
+    start_ns: int
+    end_ns: int
+
+
+def _record_name(opcode: int) -> str:
+    try:
+        return Opcode(opcode).name.lower()
+    except ValueError:
+        return f"record 0x{opcode:02x}"
+
+
+class McapLogReader:
+    """Scan an MCAP file; iterate it for time-ordered :class:`~logs.message.Message` events.
+
+    Args:
+        path: the MCAP file.
+        topic_map: ``{our_topic: their_topic}`` for logs from elsewhere; messages on
+            ``their_topic`` come out as ``our_topic`` and **only mapped topics are read**.
+        topics: keep only these (output) topics.
+        warn: emit a :class:`McapReadWarning` when the file is truncated or corrupt.
+
+    Attributes:
+        problem: :class:`ReadProblem` or ``None`` for an intact file.
+        channels: channel id → :class:`ChannelInfo` (those seen before any break).
+        metadata: metadata name → dict (values decoded as written by ``LogWriter``).
+        attachments: attachment name → ``(media_type, data)``.
+        message_count: messages readable (all topics, before the break).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *,
+                 topic_map: Mapping[str, str] | None = None,
+                 topics: Iterable[str] | None = None, warn: bool = True) -> None:
+        self.path = os.fspath(path)
+        self.problem: ReadProblem | None = None
+        self.channels: dict[int, ChannelInfo] = {}
+        self.metadata: dict[str, dict[str, Any]] = {}
+        self.attachments: dict[str, tuple[str, bytes]] = {}
+        self.message_count = 0
+        self._schemas: dict[int, Schema] = {}
+        self._chunks: list[_ChunkRef] = []
+        self._loose: list[McapMessage] = []  # messages outside chunks (unchunked files)
+        self._rename = {theirs: ours for ours, theirs in (topic_map or {}).items()}
+        self._mapped_only = topic_map is not None
+        self._topics = None if topics is None else set(topics)
+        self._decoders: dict[int, Callable[[bytes], Any] | None] = {}
+        self._last_good_ns: int | None = None
+        self._scan()
+        if self.problem is not None and warn:
+            warnings.warn(str(self.problem), McapReadWarning, stacklevel=2)
+
+    # ------------------------------------------------------------------ pass 1: scan
+    def _fail(self, offset: int, size: int, reason: str) -> None:
+        last = None if self._last_good_ns is None else self._last_good_ns / 1e9
+        self.problem = ReadProblem(self.path, offset, size, last, len(self._chunks), reason)
+
+    def _seen(self, t_ns: int) -> None:
+        if self._last_good_ns is None or t_ns > self._last_good_ns:
+            self._last_good_ns = t_ns
+
+    def _take(self, record: Any) -> None:
+        if isinstance(record, Schema):
+            self._schemas[record.id] = record
+        elif isinstance(record, Channel):
+            schema = self._schemas.get(record.schema_id)
+            self.channels[record.id] = ChannelInfo(
+                record.id, record.topic, record.message_encoding,
+                schema.name if schema else "", schema.encoding if schema else "",
+                schema.data if schema else b"")
+
+    def _scan(self) -> None:
+        size = os.path.getsize(self.path)
+        with open(self.path, "rb") as f:
+            if f.read(len(MAGIC)) != MAGIC:
+                self._fail(0, size, "not an MCAP file (bad magic)")
+                return
+            while True:
+                offset = f.tell()
+                head = f.read(_RECORD_HEADER.size)
+                if len(head) < _RECORD_HEADER.size:
+                    what = "file ends without a footer" if not head else "record header cut"
+                    self._fail(offset, size, f"{what}: truncated")
+                    return
+                opcode, length = _RECORD_HEADER.unpack(head)
+                name = _record_name(opcode)
+                if length > size - offset - _RECORD_HEADER.size:
+                    self._fail(offset, size, f"{name} of {length} bytes cut short: truncated")
+                    return
+                body = f.read(length)
+                try:
+                    done = self._parse(opcode, body, offset)
+                except Exception as exc:  # any parse failure marks the break
+                    self._fail(offset, size, f"corrupt {name}: {type(exc).__name__}: {exc}")
+                    return
+                if done:
+                    if f.read(len(MAGIC) + 1) != MAGIC:
+                        self._fail(f.tell(), size, "no closing magic after the footer")
+                    return
+
+    def _parse(self, opcode: int, body: bytes, offset: int) -> bool:
+        """Take one top-level record; ``True`` at the footer. The summary section is walked too
+        (its records repeat what the data section held), so a cut there is reported exactly."""
+        stream = ReadDataStream(io.BytesIO(body))
+        if opcode == Opcode.CHUNK:
+            chunk = Chunk.read(stream)
+            records = breakup_chunk(chunk, validate_crc=True)
+            times = []
+            for record in records:
+                if isinstance(record, McapMessage):
+                    times.append(record.log_time)
+                else:
+                    self._take(record)
+            if times:
+                self._chunks.append(_ChunkRef(offset, len(body), min(times), max(times)))
+                self.message_count += len(times)
+                self._seen(max(times))
+        elif opcode == Opcode.MESSAGE:
+            msg = McapMessage.read(stream, len(body))
+            self._loose.append(msg)
+            self.message_count += 1
+            self._seen(msg.log_time)
+        elif opcode == Opcode.SCHEMA:
+            self._take(Schema.read(stream))
+        elif opcode == Opcode.CHANNEL:
+            self._take(Channel.read(stream))
+        elif opcode == Opcode.METADATA:
+            meta = Metadata.read(stream)
+            self.metadata[meta.name] = decode_metadata(meta.metadata)
+        elif opcode == Opcode.ATTACHMENT:
+            att = Attachment.read(stream)
+            self.attachments[att.name] = (att.media_type, att.data)
+        elif opcode == Opcode.FOOTER:
+            return True
+        return False
+
+    # ------------------------------------------------------------------ decoding
+    def _output_topic(self, channel: ChannelInfo) -> str | None:
+        topic = self._rename.get(channel.topic)
+        if topic is None:
+            if self._mapped_only:
+                return None
+            topic = channel.topic
+        if self._topics is not None and topic not in self._topics:
+            return None
+        return topic
+
+    def _decoder(self, channel: ChannelInfo) -> Callable[[bytes], Any] | None:
+        if channel.id in self._decoders:
+            return self._decoders[channel.id]
+        decoder: Callable[[bytes], Any] | None
+        if channel.message_encoding == "json":
+            decoder = json.loads
+        elif channel.message_encoding == "protobuf" and channel.schema_name in fg.MESSAGE_TYPES:
+            name = channel.schema_name
+            decoder = lambda data: fg.decode(name, data)  # noqa: E731
+        elif channel.message_encoding == "protobuf":
+            from google.protobuf.json_format import MessageToDict
+            from mcap_protobuf.decoder import DecoderFactory
+
+            schema = Schema(id=0, data=channel.schema_data, encoding=channel.schema_encoding,
+                            name=channel.schema_name)
+            proto = DecoderFactory().decoder_for("protobuf", schema)
+            decoder = None if proto is None else (lambda data: MessageToDict(proto(data)))
+        else:
+            warnings.warn(f"{self.path}: {channel.topic} uses {channel.message_encoding!r}, "
+                          "which is not decoded; payloads are raw bytes", McapReadWarning,
+                          stacklevel=3)
+            decoder = bytes
+        self._decoders[channel.id] = decoder
+        return decoder
+
+    def _message(self, record: McapMessage) -> Message | None:
+        channel = self.channels.get(record.channel_id)
+        if channel is None:
+            return None
+        topic = self._output_topic(channel)
+        if topic is None:
+            return None
+        decoder = self._decoder(channel)
+        try:
+            payload = record.data if decoder is None else decoder(record.data)
+        except Exception as exc:
+            warnings.warn(f"{self.path}: cannot decode {channel.topic} at t = "
+                          f"{record.log_time / 1e9:.6f} s ({exc}); skipped", McapReadWarning,
+                          stacklevel=3)
+            return None
+        return Message(record.log_time / 1e9, topic, payload)
+
+    # ------------------------------------------------------------------ pass 2: merge
+    def _chunk_messages(self, f: io.BufferedReader, ref: _ChunkRef) -> list[McapMessage]:
+        f.seek(ref.offset + _RECORD_HEADER.size)
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(ref.length))))
+        return [r for r in breakup_chunk(chunk) if isinstance(r, McapMessage)]
+
+    def raw_records(self) -> Iterator[tuple[ChannelInfo, McapMessage]]:
+        """Undecoded ``(channel, mcap message)`` pairs in log-time order (all topics)."""
+        pending = sorted(self._chunks, key=lambda c: (c.start_ns, c.offset))
+        heap: list[tuple[int, int, int, McapMessage]] = [
+            (m.log_time, -1, i, m) for i, m in enumerate(self._loose)]
+        heapq.heapify(heap)
+        nxt = 0
+        with open(self.path, "rb") as f:
+            while heap or nxt < len(pending):
+                while nxt < len(pending) and (not heap or pending[nxt].start_ns <= heap[0][0]):
+                    ref = pending[nxt]
+                    for i, m in enumerate(self._chunk_messages(f, ref)):
+                        heapq.heappush(heap, (m.log_time, ref.offset, i, m))
+                    nxt += 1
+                _, _, _, record = heapq.heappop(heap)
+                channel = self.channels.get(record.channel_id)
+                if channel is not None:
+                    yield channel, record
+
+    def messages(self) -> Iterator[Message]:
+        """Decoded messages in log-time order, up to the break if the file is damaged."""
+        for _, record in self.raw_records():
+            msg = self._message(record)
+            if msg is not None:
+                yield msg
+
+    __iter__ = messages
+
+    def camera_model(self, name: str = "camera.json") -> dict[str, Any] | None:
+        """The camera-model attachment written by ``LogWriter.add_camera_model``, if any."""
+        if name not in self.attachments:
+            return None
+        return json.loads(self.attachments[name][1])
+
+
+def read_mcap(path: str | os.PathLike[str], *, topic_map: Mapping[str, str] | None = None,
+              topics: Iterable[str] | None = None) -> Iterator[Message]:
+    """Time-ordered messages of an MCAP file (see :class:`McapLogReader`); warns on damage.
+
+    Example:
+        >>> import os, tempfile
+        >>> from logs import LogWriter, read_mcap
+        >>> path = os.path.join(tempfile.mkdtemp(), "theirs.mcap")
+        >>> with LogWriter(path) as log:
+        ...     log.write_json("/imu/data", 1.0, {"omega": [0.0, 0.0, 0.2]})
+        >>> [m.topic for m in read_mcap(path, topic_map={"/imu/gyro": "/imu/data"})]
+        ['/imu/gyro']
+    """
+    return McapLogReader(path, topic_map=topic_map, topics=topics).messages()

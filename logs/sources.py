@@ -1,0 +1,263 @@
+"""Replay sources: every one is an iterable of :class:`~logs.message.Message` in time order.
+
+* :class:`McapSource` — an MCAP log (ours, or another with a topic map);
+* :class:`ImageFolderSource` — a folder of images (sorted by name) with timestamps from a CSV
+  or a fixed frame rate, plus an optional sensor CSV (:func:`read_sensor_csv`);
+* :class:`VideoSource` — a video file through OpenCV at a given frame rate.
+
+Images come out on ``/camera/image`` as grey ``uint8`` (``uint16`` kept for 16-bit files), gyro
+samples on ``/imu/gyro`` as ``{"omega": [x, y, z]}`` (rad/s, body) and magnetometer samples on
+``/mag`` as ``{"b_body": [x, y, z]}`` (nT, body) — the same payloads ``LogWriter`` records.
+Damaged input never raises mid-run: a :class:`~logs.reader.McapReadWarning` says where it broke,
+the text is appended to ``source.problems``, and everything before it is yielded.
+
+Example:
+    >>> import os, tempfile
+    >>> import cv2, numpy as np
+    >>> from logs import ImageFolderSource
+    >>> folder = tempfile.mkdtemp()
+    >>> for i in range(2):
+    ...     _ = cv2.imwrite(os.path.join(folder, f"f{i:03d}.png"), np.zeros((4, 4), np.uint8))
+    >>> [(m.t_s, m.topic) for m in ImageFolderSource(folder, fps=10.0)]
+    [(0.0, '/camera/image'), (0.1, '/camera/image')]
+"""
+
+from __future__ import annotations
+
+import csv
+import heapq
+import os
+import warnings
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from logs.message import Message
+from logs.reader import McapLogReader, McapReadWarning
+
+IMAGE_TOPIC = "/camera/image"
+GYRO_TOPIC = "/imu/gyro"
+MAG_TOPIC = "/mag"
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm", ".pnm", ".fits")
+
+GYRO_COLUMNS = ("gyro_x", "gyro_y", "gyro_z")
+MAG_COLUMNS = ("mag_x", "mag_y", "mag_z")
+
+
+def _report(problems: list[str], text: str) -> None:
+    problems.append(text)
+    warnings.warn(text, McapReadWarning, stacklevel=3)
+
+
+def to_grey(image: np.ndarray) -> np.ndarray:
+    """Single-channel view of an OpenCV image (BGR/BGRA → grey; depth kept)."""
+    if image.ndim == 3 and image.shape[2] == 4:
+        return cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY)
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    if image.ndim == 3:
+        return image[:, :, 0]
+    return image
+
+
+def read_sensor_csv(path: str | os.PathLike[str],
+                    problems: list[str] | None = None) -> list[Message]:
+    """Gyro and magnetometer samples from a CSV file, sorted by time.
+
+    Columns (header row required, any order, extra columns ignored):
+
+    ``t_s``
+        sample time, seconds (same clock as the images);
+    ``gyro_x, gyro_y, gyro_z``
+        body rate, rad/s, body frame → ``/imu/gyro`` ``{"omega": [...]}``;
+    ``mag_x, mag_y, mag_z``
+        magnetic field, nT, body frame → ``/mag`` ``{"b_body": [...]}``.
+
+    Either group may be absent from the file or empty in a row (sensors at different rates
+    share one file). A malformed row stops the reading there with a warning naming the line;
+    the rows before it are returned.
+
+    Example:
+        >>> import os, tempfile
+        >>> from pathlib import Path
+        >>> path = Path(tempfile.mkdtemp()) / "imu.csv"
+        >>> _ = path.write_text("t_s,gyro_x,gyro_y,gyro_z,mag_x,mag_y,mag_z\\n"
+        ...                     "0.0,0.1,0,0,,,\\n0.01,0.1,0,0,2e4,0,-4e4\\n")
+        >>> [(m.t_s, m.topic) for m in read_sensor_csv(path)]
+        [(0.0, '/imu/gyro'), (0.01, '/imu/gyro'), (0.01, '/mag')]
+    """
+    problems = [] if problems is None else problems
+    out: list[Message] = []
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        fields = set(reader.fieldnames or ())
+        if "t_s" not in fields:
+            raise ValueError(f"{path}: no 't_s' column (have {sorted(fields)})")
+        groups = [(cols, topic, key) for cols, topic, key in
+                  ((GYRO_COLUMNS, GYRO_TOPIC, "omega"), (MAG_COLUMNS, MAG_TOPIC, "b_body"))
+                  if set(cols) <= fields]
+        if not groups:
+            raise ValueError(f"{path}: neither {GYRO_COLUMNS} nor {MAG_COLUMNS} columns")
+        for row in reader:
+            line = reader.line_num
+            try:
+                t_s = float(row["t_s"])
+                rows = []
+                for cols, topic, key in groups:
+                    cells = [(row.get(c) or "").strip() for c in cols]
+                    if all(cells):
+                        rows.append(Message(t_s, topic, {key: [float(c) for c in cells]}))
+                    elif any(cells):
+                        raise ValueError(f"partly empty {cols}")
+            except (TypeError, ValueError) as exc:
+                last = f"t = {out[-1].t_s} s" if out else "no samples"
+                _report(problems, f"{path}: broken at line {line} ({exc}); read up to {last}")
+                break
+            out.extend(rows)
+    out.sort(key=lambda m: m.t_s)
+    return out
+
+
+def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
+                 timestamps_csv: str | os.PathLike[str] | None) -> list[float]:
+    if timestamps_csv is None:
+        if not fps or fps <= 0:
+            raise ValueError("give fps (> 0) or a timestamps CSV")
+        return [t0_s + i / fps for i in range(len(names))]
+    times: dict[str, float] = {}
+    with open(timestamps_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            times[os.path.basename(row["filename"])] = float(row["t_s"])
+    missing = [n for n in names if n not in times]
+    if missing:
+        raise ValueError(f"{timestamps_csv}: no time for {missing[:3]} ({len(missing)} images)")
+    return [times[n] for n in names]
+
+
+class ImageFolderSource:
+    """Images of a folder in name order, with a sensor CSV merged in by time.
+
+    Args:
+        folder: directory of images (``.png``, ``.tif``, ``.jpg``, ``.pgm``, ... ).
+        fps: frame rate when there is no timestamps CSV; frame ``i`` is at ``t0_s + i / fps``.
+        t0_s: time of the first frame with ``fps``.
+        timestamps_csv: CSV with columns ``filename, t_s`` (file name without folder).
+        sensors_csv: gyro/magnetometer CSV, see :func:`read_sensor_csv`.
+
+    An unreadable image is skipped with a warning naming it (the frames around it are fine).
+    """
+
+    def __init__(self, folder: str | os.PathLike[str], *, fps: float | None = None,
+                 t0_s: float = 0.0, timestamps_csv: str | os.PathLike[str] | None = None,
+                 sensors_csv: str | os.PathLike[str] | None = None) -> None:
+        self.folder = Path(folder)
+        self.names = sorted(p.name for p in self.folder.iterdir()
+                            if p.suffix.lower() in IMAGE_SUFFIXES)
+        self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv)
+        self.sensors_csv = sensors_csv
+        self.problems: list[str] = []
+
+    def frames(self) -> Iterator[Message]:
+        """The images alone, in time order."""
+        for t_s, name in sorted(zip(self.times, self.names, strict=True)):
+            image = cv2.imread(str(self.folder / name), cv2.IMREAD_UNCHANGED)
+            if image is None:
+                _report(self.problems, f"{self.folder / name}: unreadable image at t = {t_s} s;"
+                        " skipped")
+                continue
+            yield Message(t_s, IMAGE_TOPIC, to_grey(image))
+
+    def __iter__(self) -> Iterator[Message]:
+        sensors = ([] if self.sensors_csv is None
+                   else read_sensor_csv(self.sensors_csv, self.problems))
+        return heapq.merge(sensors, self.frames(), key=lambda m: m.t_s)
+
+
+class VideoSource:
+    """Frames of a video file (anything OpenCV's ``VideoCapture`` opens) as grey ``uint8``.
+
+    Args:
+        path: the video.
+        fps: frame rate; frame ``i`` is at ``t0_s + i / fps``. ``None`` uses the container's
+            rate (often wrong for digitised analogue video — pass it when known).
+        t0_s: time of the first frame.
+        sensors_csv: optional gyro/magnetometer CSV, see :func:`read_sensor_csv`.
+
+    A video that ends before the frame count its container announces is reported as
+    truncated (frames decoded, last good time).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, fps: float | None = None,
+                 t0_s: float = 0.0, sensors_csv: str | os.PathLike[str] | None = None) -> None:
+        self.path = os.fspath(path)
+        if not os.path.exists(self.path):
+            raise FileNotFoundError(self.path)
+        cap = cv2.VideoCapture(self.path)
+        try:
+            if not cap.isOpened():
+                raise ValueError(f"{self.path}: OpenCV cannot open this video")
+            self.frame_count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+            container_fps = float(cap.get(cv2.CAP_PROP_FPS))
+        finally:
+            cap.release()
+        self.fps = fps if fps else container_fps
+        if not self.fps or self.fps <= 0:
+            raise ValueError(f"{self.path}: no frame rate in the container; pass fps")
+        self.t0_s = t0_s
+        self.sensors_csv = sensors_csv
+        self.problems: list[str] = []
+
+    def frames(self) -> Iterator[Message]:
+        """The frames alone, in order."""
+        cap = cv2.VideoCapture(self.path)
+        i = 0
+        try:
+            while True:
+                ok, frame = cap.read()
+                if not ok:
+                    break
+                grey = to_grey(frame)
+                if grey.dtype != np.uint8:
+                    grey = cv2.convertScaleAbs(grey, alpha=255.0 / float(np.iinfo(grey.dtype).max))
+                yield Message(self.t0_s + i / self.fps, IMAGE_TOPIC, grey)
+                i += 1
+        finally:
+            cap.release()
+        if 0 < i < self.frame_count:
+            _report(self.problems, f"{self.path}: broken after frame {i} of {self.frame_count} "
+                    f"(last good t = {self.t0_s + (i - 1) / self.fps:.6f} s)")
+        elif i == 0:
+            _report(self.problems, f"{self.path}: no frame could be decoded")
+
+    def __iter__(self) -> Iterator[Message]:
+        sensors = ([] if self.sensors_csv is None
+                   else read_sensor_csv(self.sensors_csv, self.problems))
+        return heapq.merge(sensors, self.frames(), key=lambda m: m.t_s)
+
+
+class McapSource:
+    """An MCAP log as a replay source (see :class:`~logs.reader.McapLogReader`).
+
+    Example:
+        >>> import os, tempfile
+        >>> import numpy as np
+        >>> from logs import LogWriter, McapSource
+        >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
+        >>> with LogWriter(path) as log:
+        ...     log.write_image(0.0, np.zeros((4, 4), np.uint8))
+        ...     log.write_json("/imu/gyro", 0.0, {"omega": [0, 0, 1]})
+        >>> src = McapSource(path, topics=["/camera/image", "/imu/gyro", "/mag"])
+        >>> [m.topic for m in src], src.problems
+        (['/camera/image', '/imu/gyro'], [])
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *,
+                 topic_map: Mapping[str, str] | None = None,
+                 topics: Iterable[str] | None = None) -> None:
+        self.reader = McapLogReader(path, topic_map=topic_map, topics=topics, warn=True)
+        self.problems: list[str] = [] if self.reader.problem is None else [str(self.reader.problem)]
+
+    def __iter__(self) -> Iterator[Message]:
+        return self.reader.messages()

@@ -1,0 +1,533 @@
+"""logs: MCAP writer/reader round trip, damaged files, killed writers, replay sources, and an
+independent reader (@mcap/core under node)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
+
+from logs import (
+    ImageFolderSource,
+    LogWriter,
+    McapLogReader,
+    McapSource,
+    Message,
+    VideoSource,
+    read_mcap,
+    read_sensor_csv,
+)
+from logs.reader import McapReadWarning
+from logs.schemas import JSON_SCHEMAS
+
+REPO = Path(__file__).resolve().parents[1]
+FPS = 30.0
+W, H = 64, 48
+
+CONFIG = {"scenario": "oedipus", "seed": 7, "duration_s": 2.5, "note": "42", "noise": [1, 2.5]}
+CAMERA = {"width": W, "height": H, "K": [[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]],
+          "D": [0.01, -0.002, 0, 0, 0]}
+
+
+def _q(i: int) -> np.ndarray:
+    """A unit quaternion, w ≥ 0, different per frame."""
+    v = np.array([1.0, 0.1 * i, -0.05 * i, 0.02])
+    return v / np.linalg.norm(v)
+
+
+def _frame(i: int, dtype: type = np.uint8) -> np.ndarray:
+    rng = np.random.default_rng(i)
+    top = 255 if dtype == np.uint8 else 65535
+    return rng.integers(0, top, size=(H, W), dtype=dtype)
+
+
+def write_full_log(path: Path, n_frames: int = 6, chunk_size: int = 1024 * 1024
+                   ) -> list[tuple[float, str, Any]]:
+    """Every DESIGN topic; returns what was written as (t_s, topic, payload) in write order."""
+    written: list[tuple[float, str, Any]] = []
+    k = np.array(CAMERA["K"])
+    q_body_cam = np.array([0.5, 0.5, 0.5, 0.5])
+    with LogWriter(path, chunk_size=chunk_size) as log:
+        log.add_metadata("config", CONFIG)
+        log.add_camera_model(CAMERA)
+        log.write_calibration(0.0, W, H, k, CAMERA["D"], "camera")
+        written.append((0.0, "/camera/calibration", (W, H, k, np.array(CAMERA["D"]))))
+        for i in range(n_frames):
+            t = i / FPS
+            for j in range(4):  # gyro at 4x the frame rate, written before the frame
+                tg = t + j / (4 * FPS)
+                p = {"omega": [0.01 * i, -0.02, 0.3 + j]}
+                log.write_json("/imu/gyro", tg, p)
+                written.append((tg, "/imu/gyro", p))
+            p = {"b_body": [2.0e4 + i, -1.5e3, -4.1e4]}
+            log.write_json("/mag", t, p)
+            written.append((t, "/mag", p))
+            img = _frame(i)
+            log.write_image(t, img)
+            written.append((t, "/camera/image", img))
+            img16 = _frame(i, np.uint16)
+            log.write_image(t, img16, topic="/camera/image16")
+            written.append((t, "/camera/image16", img16))
+            log.write_image(t, img, topic="/camera/image_png", png=True)
+            written.append((t, "/camera/image_png", img))
+            det = np.array([[10.25, 12.5], [30.0, 40.125], [5.5, 6.75]]) + i
+            ident = [(10.25 + i, 12.5 + i, f"HIP {1000 + i}"), (30.0 + i, 40.125 + i, "HIP 7")]
+            pred = np.array([[11.0, 13.0], [50.0, 20.0]])
+            occ = [np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 47.0]])]
+            log.write_annotations(t, det, ident, pred, occ)
+            written.append((t, "/camera/annotations", (det, ident, pred, occ)))
+            sol = {"ok": i % 3 != 2, "mode": "tracking" if i else "lost-in-space",
+                   "q_cam_icrs": _q(i).tolist() if i % 3 != 2 else None,
+                   "matches": [[0, 1000 + i], [1, 7]], "matching_counter": 1,
+                   "cone_deg": 2.0 if i else None, "reason": "" if i % 3 != 2 else "ambiguous",
+                   "time_ms": 1.25}
+            log.write_json("/starid/solution", t, sol)
+            written.append((t, "/starid/solution", sol))
+            state = {"t": t, "q_body_icrs": _q(i).tolist(), "bias": [1e-5, 0.0, -2e-5],
+                     "cov_diag": [1e-6] * 3 + [1e-10] * 3, "nis": 1.5 if i else None}
+            log.write_json("/estimate/state", t, state)
+            written.append((t, "/estimate/state", state))
+            log.write_json("/smoothed/state", t, state)
+            written.append((t, "/smoothed/state", state))
+            truth = {"t": t, "q_body_icrs": _q(i + 1).tolist(), "omega": [0.0, 0.0, 1.0]}
+            log.write_json("/truth/state", t, truth)
+            written.append((t, "/truth/state", truth))
+            log.write_attitude("/estimate/pose", t, _q(i))
+            q_icrs_body = _q(i) * np.array([1, -1, -1, -1])
+            written.append((t, "/estimate/pose", q_icrs_body))
+            log.write_pose("/truth/pose", t, _q(i + 1))
+            written.append((t, "/truth/pose", _q(i + 1)))
+            tfs = [("icrs", "body", q_icrs_body, [0.0, 0.0, 0.0]),
+                   ("icrs", "body_truth", _q(i + 1), [0.0, 0.0, 0.0]),
+                   ("body", "camera", q_body_cam, [0.1, 0.0, 0.2])]
+            log.write_tf(t, tfs)
+            written.append((t, "/tf", tfs))
+    return written
+
+
+def _check_payload(topic: str, got: Any, want: Any) -> None:
+    if topic in ("/camera/image", "/camera/image16", "/camera/image_png"):
+        assert got.dtype == want.dtype and np.array_equal(got, want)
+    elif topic == "/camera/calibration":
+        w, h, k, d = want
+        assert (got["width"], got["height"], got["frame_id"]) == (w, h, "camera")
+        assert np.array_equal(got["K"], k) and np.array_equal(got["D"], d)
+        assert got["distortion_model"] == "plumb_bob"
+        assert np.array_equal(got["P"][:, :3], k)
+    elif topic == "/camera/annotations":
+        det, ident, pred, occ = want
+        assert np.array_equal(got["detections_xy"], det)
+        assert got["identified"] == ident
+        assert np.array_equal(got["predicted_xy"], pred)
+        assert len(got["occupied"]) == 1 and np.array_equal(got["occupied"][0], occ[0])
+        assert got["points"] == [] and got["circles"] == [] and got["texts"] == []
+    elif topic in ("/estimate/pose", "/truth/pose"):
+        assert got["frame_id"] == "icrs"
+        assert np.array_equal(got["q_wxyz"], want) and np.array_equal(got["position"], 0 * want[:3])
+    elif topic == "/tf":
+        assert len(got["transforms"]) == len(want)
+        for g, (parent, child, q, tr) in zip(got["transforms"], want, strict=True):
+            assert (g["parent"], g["child"]) == (parent, child)
+            assert np.array_equal(g["q_wxyz"], q) and np.array_equal(g["translation"], tr)
+    else:
+        assert got == want, topic
+
+
+def _key(item: tuple[float, str, Any]) -> tuple[int, str]:
+    return round(item[0] * 1e9), item[1]
+
+
+# --------------------------------------------------------------------------- round trip
+def test_round_trip_every_topic(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    written = write_full_log(path)
+    reader = McapLogReader(path)
+    assert reader.problem is None
+    got = list(reader)
+    assert all(isinstance(m, Message) for m in got)
+    assert len(got) == len(written) == reader.message_count
+    times = [m.t_s for m in got]
+    assert times == sorted(times)
+    # match by (time, topic): several topics share a timestamp
+    expect: dict[tuple[int, str], list[Any]] = {}
+    for item in written:
+        expect.setdefault(_key(item), []).append(item[2])
+    for m in got:
+        _check_payload(m.topic, m.payload, expect[_key((m.t_s, m.topic, None))].pop(0))
+    assert all(not v for v in expect.values())
+    assert {c.topic for c in reader.channels.values()} == {t for _, t, _ in written}
+    assert reader.metadata == {"config": CONFIG}
+    assert reader.camera_model() == CAMERA
+    assert reader.attachments["camera.json"][0] == "application/json"
+
+
+def test_times_are_integer_nanoseconds_and_schemas_named(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    write_full_log(path, n_frames=2)
+    with open(path, "rb") as f:
+        r = make_reader(f)
+        summary = r.get_summary()
+        assert summary is not None and summary.chunk_indexes
+        assert all(ci.compression == "zstd" for ci in summary.chunk_indexes)
+        log_times = {m.log_time for _, _, m in r.iter_messages()}
+        names = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    assert round(1 / FPS * 1e9) in log_times
+    assert names["/camera/image"] == "foxglove.RawImage"
+    assert names["/camera/image_png"] == "foxglove.CompressedImage"
+    assert names["/camera/annotations"] == "foxglove.ImageAnnotations"
+    assert names["/estimate/pose"] == "foxglove.PoseInFrame"
+    assert names["/tf"] == "foxglove.FrameTransforms"
+    assert names["/camera/calibration"] == "foxglove.CameraCalibration"
+    for topic, (schema_name, _) in JSON_SCHEMAS.items():
+        assert names[topic] == schema_name
+
+
+def test_out_of_order_writes_come_back_sorted(tmp_path: Path) -> None:
+    path = tmp_path / "late.mcap"
+    with LogWriter(path, chunk_size=256) as log:
+        for i in range(10):
+            log.write_json("/mag", 1.0 + i, {"b_body": [i, 0, 0]})
+        for i in range(10):  # a late batch, earlier in time, in later chunks
+            log.write_json("/imu/gyro", 0.5 + i, {"omega": [i, 0, 0]})
+    got = [m.t_s for m in read_mcap(path)]
+    assert got == sorted(got) and len(got) == 20
+
+
+def test_non_finite_json_becomes_null_and_validates(tmp_path: Path) -> None:
+    jsonschema = pytest.importorskip("jsonschema")
+    path = tmp_path / "nan.mcap"
+    state = {"t": 0.0, "q_body_icrs": np.array([1.0, 0, 0, 0]), "bias": np.zeros(3),
+             "cov_diag": np.array([np.inf, 1, 1, 1, 1, 1.0]), "nis": float("nan")}
+    with LogWriter(path) as log:
+        log.write_json("/estimate/state", 0.0, state)
+    (m,) = list(read_mcap(path))
+    assert m.payload["nis"] is None and m.payload["cov_diag"][0] is None
+    jsonschema.Draft202012Validator(JSON_SCHEMAS["/estimate/state"][1]).validate(m.payload)
+
+
+def test_topic_map_for_foreign_logs(tmp_path: Path) -> None:
+    path = tmp_path / "theirs.mcap"
+    with LogWriter(path) as log:
+        log.write_image(0.0, _frame(0), topic="/cam0/image_raw")
+        log.write_json("/imu/data", 0.001, {"omega": [0.0, 0.0, 0.5]})
+        log.write_json("/diagnostics", 0.002, {"cpu": 0.5})
+    got = list(read_mcap(path, topic_map={"/camera/image": "/cam0/image_raw",
+                                          "/imu/gyro": "/imu/data"}))
+    assert [m.topic for m in got] == ["/camera/image", "/imu/gyro"]
+    assert np.array_equal(got[0].payload, _frame(0))
+    assert [m.topic for m in read_mcap(path)] == ["/cam0/image_raw", "/imu/data", "/diagnostics"]
+
+
+def test_other_protobuf_types_decode_to_dicts(tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.Log_pb2 import Log
+    from mcap_protobuf.writer import Writer
+
+    path = tmp_path / "log.mcap"
+    with open(path, "wb") as f, Writer(f) as w:
+        w.write_message("/rosout", Log(message="hello", name="node"), log_time=5, publish_time=5)
+    (m,) = list(read_mcap(path))
+    assert (m.t_s, m.topic) == (5e-9, "/rosout")
+    assert m.payload["message"] == "hello" and m.payload["name"] == "node"
+
+
+# --------------------------------------------------------------------------- damage
+def _chunks(path: Path) -> list[tuple[int, int, int]]:
+    """(start offset, end offset, message count) of every chunk, via mcap's own summary."""
+    out = []
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        assert summary is not None
+        for ci in summary.chunk_indexes:
+            f.seek(ci.chunk_start_offset + 9)
+            chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(ci.chunk_length - 9))))
+            n = sum(isinstance(r, McapMessage) for r in breakup_chunk(chunk))
+            out.append((ci.chunk_start_offset, ci.chunk_start_offset + ci.chunk_length, n))
+    return out
+
+
+def test_truncated_file_reads_up_to_last_complete_chunk(tmp_path: Path) -> None:
+    path = tmp_path / "full.mcap"
+    write_full_log(path, n_frames=12, chunk_size=16 * 1024)
+    data = path.read_bytes()
+    chunks = _chunks(path)
+    assert len(chunks) >= 6
+    total = sum(n for _, _, n in chunks)
+    assert total == McapLogReader(path).message_count
+    cuts = [20, chunks[0][0] + 5, chunks[2][0] + 100, chunks[3][1], chunks[-1][1] - 1,
+            chunks[-1][1] + 3, len(data) - 10]
+    for cut in cuts:
+        broken = tmp_path / f"cut{cut}.mcap"
+        broken.write_bytes(data[:cut])
+        with pytest.warns(McapReadWarning, match=r"broken at byte \d+ of " + str(cut)):
+            reader = McapLogReader(broken)
+        complete = [(s, e, n) for s, e, n in chunks if e <= cut]
+        want = sum(n for _, _, n in complete)
+        msgs = list(reader)
+        assert len(msgs) == want == reader.message_count, cut
+        problem = reader.problem
+        assert problem is not None and problem.file_size == cut
+        assert problem.good_chunks == len(complete)
+        assert problem.offset <= cut
+        if complete:
+            assert problem.offset >= complete[-1][1]
+            assert problem.last_good_t_s == max(m.t_s for m in msgs)
+            assert f"t = {problem.last_good_t_s:.6f} s" in str(problem)
+        else:
+            assert problem.last_good_t_s is None
+        times = [m.t_s for m in msgs]
+        assert times == sorted(times)
+        if cut >= chunks[0][1] and reader.camera_model() is not None:
+            assert reader.metadata["config"] == CONFIG
+
+
+def test_corrupt_chunk_stops_there(tmp_path: Path) -> None:
+    path = tmp_path / "full.mcap"
+    write_full_log(path, n_frames=12, chunk_size=16 * 1024)
+    chunks = _chunks(path)
+    data = bytearray(path.read_bytes())
+    start = chunks[3][0]
+    for k in range(start + 200, start + 260):
+        data[k] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.warns(McapReadWarning, match=f"broken at byte {start} .*corrupt chunk"):
+        reader = McapLogReader(path)
+    assert len(list(reader)) == sum(n for _, _, n in chunks[:3])
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file at all")
+    with pytest.warns(McapReadWarning, match="bad magic"):
+        assert list(McapSource(bad)) == []
+
+
+KILLED_WRITER = """
+import sys
+import numpy as np
+from logs import LogWriter
+log = LogWriter(sys.argv[1], chunk_size=100_000)
+log.add_metadata("config", {"run": "killed"})
+i = 0
+while True:
+    img = np.full((480, 512), i % 256, np.uint8)
+    log.write_image(i / 30, img)
+    log.write_json("/estimate/state", i / 30, {"t": i / 30, "q_body_icrs": [1, 0, 0, 0],
+                   "bias": [0, 0, 0], "cov_diag": [0] * 6, "nis": float(i)})
+    if i == 40:
+        print("ready", flush=True)
+    i += 1
+"""
+
+
+def test_writer_killed_by_sigkill_leaves_readable_file(tmp_path: Path) -> None:
+    path = tmp_path / "killed.mcap"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_WRITER, str(path)], cwd=tmp_path,
+                            env=env, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "ready"
+        time.sleep(0.2)
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        if proc.stdout is not None:
+            proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    with pytest.warns(McapReadWarning, match="broken at byte"):
+        reader = McapLogReader(path)
+    assert reader.metadata == {"config": {"run": "killed"}}
+    msgs = list(reader)
+    frames = [m for m in msgs if m.topic == "/camera/image"]
+    states = [m for m in msgs if m.topic == "/estimate/state"]
+    assert len(frames) >= 40 - 1  # at most the chunk in progress (< 1 frame here) is lost
+    for k, m in enumerate(frames):
+        assert m.t_s == pytest.approx(k / 30, abs=1e-9)
+        assert m.payload.shape == (480, 512) and int(m.payload[0, 0]) == k % 256
+    assert len(frames) - 1 <= len(states) <= len(frames)  # a frame's state may be in the lost chunk
+    assert [s.payload["nis"] for s in states] == list(range(len(states)))
+
+
+# --------------------------------------------------------------------------- other sources
+def _write_sensor_csv(path: Path, bad_line: bool = False) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t_s", "gyro_x", "gyro_y", "gyro_z", "mag_x", "mag_y", "mag_z"])
+        for k in range(20):
+            t = k * 0.01
+            mag = [2e4, 0.0, -4e4 + k] if k % 5 == 0 else ["", "", ""]
+            w.writerow([t, 0.001 * k, 0.0, 0.5, *mag])
+            if bad_line and k == 9:
+                f.write("0.095,abc,0,0,,,\n")
+
+
+def test_image_folder_with_csvs(tmp_path: Path) -> None:
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    names = [f"img_{i:03d}.png" for i in range(4)]
+    for i, name in enumerate(names):
+        assert cv2.imwrite(str(folder / name), _frame(i))
+    cv2.imwrite(str(folder / "img_004.tif"), _frame(4, np.uint16))
+    (folder / "notes.txt").write_text("not an image")
+    stamps = tmp_path / "frames.csv"
+    stamps.write_text("filename,t_s\n" + "".join(
+        f"{n},{0.05 * i + 0.001}\n" for i, n in enumerate([*names, "img_004.tif"])))
+    sensors = tmp_path / "imu.csv"
+    _write_sensor_csv(sensors)
+    src = ImageFolderSource(folder, timestamps_csv=stamps, sensors_csv=sensors)
+    msgs = list(src)
+    assert src.problems == []
+    times = [m.t_s for m in msgs]
+    assert times == sorted(times)
+    imgs = [m for m in msgs if m.topic == "/camera/image"]
+    assert [m.t_s for m in imgs] == pytest.approx([0.05 * i + 0.001 for i in range(5)])
+    for i, m in enumerate(imgs[:4]):
+        assert np.array_equal(m.payload, _frame(i))
+    assert imgs[4].payload.dtype == np.uint16 and np.array_equal(imgs[4].payload,
+                                                                  _frame(4, np.uint16))
+    gyro = [m for m in msgs if m.topic == "/imu/gyro"]
+    mag = [m for m in msgs if m.topic == "/mag"]
+    assert len(gyro) == 20 and len(mag) == 4
+    assert gyro[3].payload == {"omega": [0.003, 0.0, 0.5]}
+    assert mag[1] == Message(0.05, "/mag", {"b_body": [2e4, 0.0, -4e4 + 5]})
+    fixed = list(ImageFolderSource(folder, fps=10.0, t0_s=2.0))
+    assert [m.t_s for m in fixed] == pytest.approx([2.0, 2.1, 2.2, 2.3, 2.4])
+
+
+def test_broken_csv_and_image_are_reported(tmp_path: Path) -> None:
+    sensors = tmp_path / "imu.csv"
+    _write_sensor_csv(sensors, bad_line=True)
+    problems: list[str] = []
+    with pytest.warns(McapReadWarning, match=r"broken at line 12 .*read up to t = 0.09 s"):
+        msgs = read_sensor_csv(sensors, problems)
+    assert len([m for m in msgs if m.topic == "/imu/gyro"]) == 10 and len(problems) == 1
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    cv2.imwrite(str(folder / "a.png"), _frame(0))
+    (folder / "b.png").write_bytes(b"\x89PNG truncated")
+    cv2.imwrite(str(folder / "c.png"), _frame(2))
+    src = ImageFolderSource(folder, fps=1.0)
+    with pytest.warns(McapReadWarning, match=r"b\.png: unreadable image at t = 1.0 s"):
+        msgs = list(src)
+    assert [m.t_s for m in msgs] == [0.0, 2.0]
+
+
+@pytest.mark.opencv
+def test_video_source(tmp_path: Path) -> None:
+    path = tmp_path / "flight.avi"
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 25.0, (W, H))
+    if not vw.isOpened():
+        pytest.skip("this OpenCV build cannot write MJPG/avi")
+    levels = [20 * i + 10 for i in range(10)]
+    for level in levels:
+        img = np.full((H, W, 3), level, np.uint8)
+        img[10:20, 10:20] = 255
+        vw.write(img)
+    vw.release()
+    sensors = tmp_path / "imu.csv"
+    _write_sensor_csv(sensors)
+    src = VideoSource(path, fps=30.0, t0_s=1.0)
+    frames = list(src.frames())
+    assert src.problems == []
+    assert len(frames) == 10
+    assert [m.t_s for m in frames] == pytest.approx([1.0 + i / 30 for i in range(10)])
+    for m, level in zip(frames, levels, strict=True):
+        assert m.topic == "/camera/image" and m.payload.dtype == np.uint8
+        assert m.payload.shape == (H, W)
+        assert abs(float(np.median(m.payload)) - level) <= 3
+        assert m.payload[15, 15] >= 240
+    assert VideoSource(path).fps == pytest.approx(25.0)  # the container's rate
+    merged = list(VideoSource(path, fps=30.0, sensors_csv=sensors))
+    assert len(merged) == 10 + 24 and [m.t_s for m in merged] == sorted(m.t_s for m in merged)
+
+
+# --------------------------------------------------------------------------- independent reader
+NODE_CACHE = Path(os.environ.get("ADFUSION_NODE_CACHE",
+                                 Path.home() / ".cache" / "adfusion" / "node-mcap"))
+NODE_PACKAGES = ["@mcap/core@2", "fzstd@0.1", "lz4js@0.2"]
+
+
+def _node_mcap() -> Path:
+    """Cache dir holding node_modules/@mcap/core (installed on first use); skips without it."""
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip("node/npm not on PATH")
+    if not all((NODE_CACHE / "node_modules" / p.rsplit("@", 1)[0]).is_dir()
+               for p in NODE_PACKAGES):
+        NODE_CACHE.mkdir(parents=True, exist_ok=True)
+        pkg = NODE_CACHE / "package.json"
+        if not pkg.exists():
+            pkg.write_text('{"name": "adfusion-node-mcap", "private": true}\n')
+        try:
+            subprocess.run([npm, "install", "--no-audit", "--no-fund", *NODE_PACKAGES],
+                           cwd=NODE_CACHE, check=True, capture_output=True, timeout=240)
+        except (subprocess.SubprocessError, OSError) as exc:
+            pytest.skip(f"npm install of {NODE_PACKAGES} failed: {exc}")
+    return NODE_CACHE
+
+
+def test_independent_typescript_reader(tmp_path: Path) -> None:
+    jsonschema = pytest.importorskip("jsonschema")
+    from google.protobuf.descriptor_pb2 import FileDescriptorSet
+
+    cache = _node_mcap()
+    path = tmp_path / "run.mcap"
+    written = write_full_log(path, n_frames=8, chunk_size=32 * 1024)
+    out = subprocess.run(["node", str(REPO / "tests" / "node" / "read_mcap.cjs"), str(cache),
+                          str(path)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+
+    ours: dict[str, int] = {}
+    for m in McapLogReader(path):
+        ours[m.topic] = ours.get(m.topic, 0) + 1
+    want = {}
+    for _, topic, _ in written:
+        want[topic] = want.get(topic, 0) + 1
+    assert report["counts"] == ours == want
+    assert report["statisticsMessageCount"] == len(written)
+    assert report["ordered"]
+    assert report["metadata"] == [{"name": "config", "metadata": {
+        "scenario": "oedipus", "seed": "7", "duration_s": "2.5", "note": '"42"',
+        "noise": "[1,2.5]"}}]
+    assert report["attachments"] == [{"name": "camera.json", "mediaType": "application/json",
+                                      "size": len(json.dumps(CAMERA, separators=(",", ":")))}]
+
+    for ch in report["channels"]:
+        name, enc = ch["schemaName"], ch["schemaEncoding"]
+        if name.startswith("foxglove."):
+            assert enc == "protobuf" and ch["messageEncoding"] == "protobuf"
+            fds = FileDescriptorSet.FromString(__import__("base64").b64decode(ch["schemaData"]))
+            types = {f"{fd.package}.{m.name}" for fd in fds.file for m in fd.message_type}
+            assert name in types, name
+        else:
+            assert enc == "jsonschema" and ch["messageEncoding"] == "json", ch["topic"]
+            schema = json.loads(ch["schemaData"])
+            jsonschema.Draft202012Validator.check_schema(schema)
+            validator = jsonschema.Draft202012Validator(schema)
+            texts = report["jsonMessages"][ch["topic"]]
+            assert len(texts) == want[ch["topic"]]
+            for text in texts:
+                validator.validate(json.loads(text))
+
+
+def test_no_warning_for_intact_file(tmp_path: Path) -> None:
+    path = tmp_path / "run.mcap"
+    write_full_log(path, n_frames=2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert len(list(McapSource(path))) == McapLogReader(path).message_count
