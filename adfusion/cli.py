@@ -5,8 +5,8 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 
 Example:
     >>> from adfusion.cli import build_parser
-    >>> sorted(build_parser()._subparsers._group_actions[0].choices)
-    ['bench', 'catalog', 'detect', 'solve']
+    >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:4]
+    ['bench', 'catalog', 'demo', 'detect']
 """
 
 from __future__ import annotations
@@ -52,6 +52,36 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--overlay", metavar="PNG", help="write an overlay image for checking")
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=cmd_solve)
+
+    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo)")
+    sm.add_argument("scenario", choices=["oedipus", "leo"])
+    sm.add_argument("-o", "--output", required=True, help="output .mcap")
+    sm.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    sm.add_argument("--seed", type=int, default=0)
+    sm.add_argument("--no-render", action="store_true",
+                    help="write star centroids instead of rendered images (fast)")
+    sm.set_defaults(func=cmd_simulate)
+
+    rp = sub.add_parser("replay", help="detect → identify → filter a log, write the results")
+    rp.add_argument("input", help="input .mcap (ours, or with the same topics)")
+    rp.add_argument("-o", "--output", required=True, help="output .mcap")
+    rp.add_argument("--no-gyro", action="store_true", help="ignore the gyro")
+    rp.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
+    rp.add_argument("--mag-limit", type=float, default=None,
+                    help="catalogue limit (default: the log's, else 5.5)")
+    rp.add_argument("--json", action="store_true", help="print the summary as JSON")
+    rp.set_defaults(func=cmd_replay)
+
+    rq = sub.add_parser("report", help="plots and a summary of a replayed log")
+    rq.add_argument("log", help="a replayed .mcap")
+    rq.add_argument("-o", "--output", required=True, help="output folder")
+    rq.set_defaults(func=cmd_report)
+
+    dm = sub.add_parser("demo", help="simulate a short OEDIPUS-like flight, replay it, report")
+    dm.add_argument("-o", "--output", default="adfusion-demo", help="folder (default "
+                    "./adfusion-demo)")
+    dm.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    dm.set_defaults(func=cmd_demo)
 
     b = sub.add_parser("bench", help="benchmarks against the peers (tetra3rs, cedar-solve)")
     bsub = b.add_subparsers(dest="bench", metavar="BENCH", required=True)
@@ -222,6 +252,63 @@ def _julian_year_now() -> float:
     now = dt.datetime.now(dt.UTC)
     j2000 = dt.datetime(2000, 1, 1, 12, tzinfo=dt.UTC)
     return 2000.0 + (now - j2000).total_seconds() / (365.25 * 86400)
+
+
+def _scenario(name: str, duration: float, seed: int, render: bool):
+    from sensors import scenarios
+
+    return getattr(scenarios, name)(duration_s=duration, seed=seed, render=render)
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from adfusion.pipeline import simulate
+
+    if not args.duration > 0:
+        raise ValueError("--duration must be positive")
+    t0 = time.perf_counter()
+    n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render),
+                 args.output)
+    print(f"{args.scenario}: {n} frames, {args.duration:g} s, seed {args.seed} → "
+          f"{args.output} ({time.perf_counter() - t0:.1f} s)")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from adfusion.pipeline import replay
+
+    s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
+               mag_limit=args.mag_limit, progress=sys.stderr.isatty())
+    print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from adfusion.report import report
+
+    files = report(args.log, args.output)
+    print("\n".join(str(f) for f in files))
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from adfusion.pipeline import replay, simulate
+    from adfusion.report import report
+
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sim, rep = out / "flight.mcap", out / "replay.mcap"
+    n = simulate(_scenario("oedipus", args.duration, 0, True), sim)
+    print(f"simulated an OEDIPUS-C-like flight: {n} intensified frames + gyro + magnetometer "
+          f"→ {sim} ({time.perf_counter() - t0:.1f} s)")
+    s = replay(sim, rep, progress=sys.stderr.isatty())
+    print(f"replayed → {rep}\n{s}")
+    files = report(rep, out / "report")
+    print(f"report → {files[-1]} (+{len(files) - 1} plots); open {rep} in Foxglove\n"
+          f"total {time.perf_counter() - t0:.1f} s")
+    return 0
 
 
 def _run_bench(module, args: argparse.Namespace) -> int:

@@ -62,6 +62,7 @@ class StepRecord:
     nis: dict[str, float] = field(default_factory=dict)
     rejected: list[tuple[str, str]] = field(default_factory=list)  # (input, reason)
     solution: Solution | None = None
+    detections_xy: NDArray[np.float64] | None = None  # the frame's detections (pixels)
 
 
 class Estimator:
@@ -192,6 +193,11 @@ class Estimator:
                 rec.rejected.append(("camera", f"detection failed: {e}"))
                 return
         rec.sensors.append("camera")
+        try:
+            arr = np.asarray(getattr(detections, "xy", detections), dtype=np.float64)
+            rec.detections_xy = arr[:, :2] if arr.ndim == 2 and arr.shape[1] >= 2 else None
+        except (TypeError, ValueError):
+            rec.detections_xy = None
         prior = None
         if self.filter is not None and self.misses < self.max_misses:
             q_cam_icrs = rot.multiply(self.q_cam_body, self.filter.q_body_icrs)
@@ -225,6 +231,16 @@ class Estimator:
         rec.nis["star fix"] = float(res.nis)
         if res.accepted:
             rec.fix_accepted = True
+            self.misses = 0
+        elif self._omega_hold is None and sol.mode == "lost-in-space":
+            # no gyro has ever been seen: the filter cannot predict a moving body, so a
+            # verified lost-in-space fix restarts it (a rate-estimating video-only model
+            # is the proper answer; until then, per-frame fixes beat a frozen prediction)
+            sigma0 = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_body))))
+            self.filter = self._make_filter(q_body_icrs, max(sigma0, 1e-7))
+            rec.fix_accepted = True
+            rec.rejected.append(("star fix", "no rate information: filter re-initialised "
+                                             "from a lost-in-space fix"))
             self.misses = 0
         else:
             rec.rejected.append(("star fix", f"{sol.mode} fix rejected by the filter gate: "

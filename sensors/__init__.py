@@ -63,14 +63,18 @@ from sensors.render import (
     render_sky,
     render_stars,
 )
+from sensors.scenarios import Event, FrameTruth, Scenario, leo, oedipus
 
 __all__ = [
+    "Event",
     "Frame",
+    "FrameTruth",
     "GyroModel",
     "GyroSample",
     "Intensifier",
     "MagnetometerModel",
     "Planet",
+    "Scenario",
     "SensorModel",
     "Tether",
     "Trajectory",
@@ -79,7 +83,9 @@ __all__ = [
     "field_enu_nT",
     "field_icrs_nT",
     "gmst_rad",
+    "leo",
     "magnitude_to_electrons",
+    "oedipus",
     "precession_matrix",
     "r_ecef_enu",
     "r_icrs_ecef",

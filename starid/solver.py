@@ -523,18 +523,19 @@ class Solver:
         p_hit = min(1.0, len(pred_xy) * np.pi * tight**2 / (cam.width * cam.height))
         n_hyp = float(np.prod(np.maximum(n_alt, 1)))
         p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
+        cov = w.covariance * _variance_factor(w)
         cand = Candidate(
             q_cam_icrs=w.q_cam_icrs,
             matches=[(int(a), int(self.ids[c])) for a, c in zip(det_i, cat_i, strict=True)],
             residuals_rad=w.residuals_rad, p_false=p_false, n_pattern=len(det_i),
-            camera=cam, covariance=w.covariance, _projector=self._project,
+            camera=cam, covariance=cov, _projector=self._project,
         )
         if p_false > self.p_false_max_tracking:
             return Solution(False, f"ambiguous: {len(det_i)} tracked stars, p_false "
                                    f"{p_false:.2g} > {self.p_false_max_tracking:.0e}",
                             mode="tracking", candidates=[cand])
         return Solution(True, "", q_cam_icrs=w.q_cam_icrs, matches=cand.matches,
-                        matching_counter=1, covariance=w.covariance, mode="tracking",
+                        matching_counter=1, covariance=cov, mode="tracking",
                         p_false=p_false, path="tracking", candidates=[cand],
                         residuals_rad=w.residuals_rad, camera=cam)
 
@@ -671,7 +672,7 @@ class Solver:
             p_false=p_false,
             n_pattern=len(sel),
             camera=cam,
-            covariance=final.covariance,
+            covariance=final.covariance * _variance_factor(final),
             _projector=self._project,
         )
 
@@ -762,6 +763,15 @@ def _pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
     """Each detection to its nearest predicted star within a radius, one-to-one."""
     det, j = _one_to_one(*cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px))
     return det, pred_idx[j].astype(np.int64)
+
+
+def _variance_factor(w) -> float:
+    """A-posteriori variance factor of a Wahba fit, never below 1: when the residuals say
+    the centroids are worse than ``centroid_sigma_px`` (blur, intensifier noise, lens
+    residuals), the fix's covariance grows accordingly instead of lying to a filter.
+    Each star gives 2 measurements; the attitude takes 3 degrees of freedom."""
+    dof = 2 * len(w.residuals_rad) - 3
+    return max(1.0, w.loss / dof) if dof > 0 else 1.0
 
 
 def _one_to_one(d: NDArray, j: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
