@@ -83,6 +83,11 @@ class Estimator:
         widen_per_miss: factor by which the tracking cone grows after each miss.
         min_cone_deg: the smallest tracking σ handed to the solver (centroid noise, lens
             residuals and timing make a perfectly confident prediction wrong).
+        fix_covariance_scale: star-fix covariance multiplier. Fixes from consecutive
+            frames share their errors (the same stars, streak geometry, catalogue and lens
+            residuals); a filter that takes them as independent grows overconfident. On the
+            OEDIPUS-like replay: 1 → the estimate inside its 3σ bound 81 % of the time,
+            4 → 99.3 % (RMS error 0.024° → 0.028°). Use 1 for truly independent fixes.
         detect: the detection function for ``frame=`` (default ``starid.detect``).
     """
 
@@ -100,8 +105,12 @@ class Estimator:
         max_misses: int = 10,
         widen_per_miss: float = 1.5,
         min_cone_deg: float = 0.02,
+        fix_covariance_scale: float = 4.0,
         detect: Callable | None = None,
     ) -> None:
+        if not fix_covariance_scale >= 1.0:
+            raise ValueError(f"fix_covariance_scale must be ≥ 1, got {fix_covariance_scale}")
+        self.fix_covariance_scale = float(fix_covariance_scale)
         self.solver = solver
         self.q_body_cam = rot.normalize(q_body_cam)
         self.q_cam_body = rot.inverse(self.q_body_cam)
@@ -220,7 +229,8 @@ class Estimator:
             self.misses += 1
             return
         q_body_icrs = rot.multiply(self.q_body_cam, sol.q_cam_icrs)
-        cov_body = self.R_body_cam @ sol.covariance @ self.R_body_cam.T
+        cov_body = self.fix_covariance_scale * (self.R_body_cam @ sol.covariance
+                                                @ self.R_body_cam.T)
         if self.filter is None:
             sigma0 = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_body))))
             self.filter = self._make_filter(q_body_icrs, max(sigma0, 1e-7))

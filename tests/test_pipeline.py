@@ -32,6 +32,9 @@ def test_rendered_flight_replays_to_the_truth(rendered):
     e = s.as_dict()
     assert e["error_max_deg"] < 0.1
     assert not s.problem
+    # 3σ-consistent: the error lies inside the filter's own 3σ bound (sqrt of the trace)
+    inside = np.asarray(s.errors_deg) <= 3 * np.asarray(s.sigmas_deg)
+    assert inside.mean() >= 0.95
 
 
 def test_replay_is_deterministic(rendered):
