@@ -33,7 +33,7 @@ Example:
     >>> from sensors.scenarios import oedipus
     >>> sc = oedipus(duration_s=0.1, render=False)
     >>> sc.camera.width, sc.camera.height, round(sc.camera.fov_y_deg, 2)
-    (512, 480, 24.27)
+    (512, 480, 20.33)
     >>> [e.kind for e in sc.events()][:5]
     ['truth', 'gyro', 'mag', 'frame', 'truth']
     >>> sum(e.kind == "gyro" for e in sc.events()), sc.config["gyro"]["rate_hz"]
@@ -454,8 +454,8 @@ def oedipus(
       ``coning_deg`` (3°) half-angle between +z and the angular momentum; the momentum
       points at (``target_ra_deg``, ``target_dec_deg``) = (350°, +62°), between Cassiopeia
       and Cepheus. Coning period ≈ 2π·I_t/(I_s·ω_s) ≈ 20 s.
-    * **Camera**: ``Camera.pinhole(512, 480, 25.84)`` (square pixels, so 24.27° vertical;
-      the real camera's 20.33° needs non-square pixels, ``Camera.yee``), boresight tilted
+    * **Camera**: ``Camera.pinhole(512, 480, 25.84, fov_y_deg=20.33)`` (non-square pixels, as
+      the digitised video of the real camera), boresight tilted
       ``camera_tilt_deg`` (2°) from the spin axis towards body +x (a rotation about body +y),
       so it stays within coning + tilt ≈ 5° of the target; 30 fps, ``exposure_s`` = 1/60 s
       (one video field), stars of V < ``mag_limit`` (5.0) from Hipparcos at epoch 1995.85.
@@ -479,7 +479,7 @@ def oedipus(
     >>> len(sc.t_frame), len(sc.t_gyro), len(sc.t_mag)
     (6, 40, 10)
     """
-    camera = Camera.pinhole(512, 480, 25.84)
+    camera = Camera.pinhole(512, 480, 25.84, fov_y_deg=20.33)
     inertia = np.diag([40.0, 41.0, 4.0])
     i_t, i_s = inertia[0, 0], inertia[2, 2]
     w_s = 2.0 * np.pi * spin_rev_s

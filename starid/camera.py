@@ -109,11 +109,13 @@ class Camera:
         fov_x_deg: float,
         D: ArrayLike | None = None,
         parity: int = 1,
+        fov_y_deg: float | None = None,
     ) -> Camera:
-        """Ideal pinhole: square pixels, principal point at the image centre.
+        """Ideal pinhole, principal point at the image centre.
 
         ``fov_x_deg`` spans the full width, from the left edge of the first pixel to the
-        right edge of the last (``width`` pixels).
+        right edge of the last (``width`` pixels). Pixels are square unless ``fov_y_deg``
+        is given (digitised analogue video often has non-square pixels).
 
         >>> Camera.pinhole(640, 480, 20.0).K[0, 2]
         np.float64(319.5)
@@ -121,7 +123,12 @@ class Camera:
         if not np.isfinite(fov_x_deg) or not 0.0 < fov_x_deg < 179.0:
             raise ValueError(f"fov_x_deg must be in (0, 179) for a pinhole, got {fov_x_deg}")
         f = 0.5 * width / np.tan(np.radians(fov_x_deg) / 2)
-        K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
+        fy = f
+        if fov_y_deg is not None:
+            if not np.isfinite(fov_y_deg) or not 0.0 < fov_y_deg < 179.0:
+                raise ValueError(f"fov_y_deg must be in (0, 179), got {fov_y_deg}")
+            fy = 0.5 * height / np.tan(np.radians(fov_y_deg) / 2)
+        K = np.array([[f, 0, (width - 1) / 2], [0, fy, (height - 1) / 2], [0, 0, 1.0]])
         return cls(K, np.zeros(5) if D is None else D, width, height, "pinhole", parity)
 
     @classmethod

@@ -31,6 +31,7 @@ CAMERAS = {
     "pinhole-rational-prism": Camera.pinhole(640, 480, 50.0, D=D_STRONG),
     "mirrored": Camera.pinhole(1024, 768, 20.0, D=D_STRONG[:5]).mirrored(),
     "renken": Camera.renken(),
+    "non-square-oedipus": Camera.pinhole(512, 480, 25.84, fov_y_deg=20.33),
     "yee-oedipus": Camera.yee(512, 480, 25.8356, 20.3319),
     "skewed-K": Camera(np.array([[900.0, 0.7, 300.2], [0, 905.0, 241.0], [0, 0, 1]]),
                        D_STRONG[:4], 640, 480),
@@ -97,6 +98,14 @@ def test_pinhole_geometry_and_conventions():
     assert np.isnan(cam.vectors_to_pixels([[0, 0, -1.0]])).all()
     assert cam.in_frame([[-0.5, 0], [1023.6, 5], [np.nan, 1]]).tolist() == [True, False, False]
     assert Camera.from_dict(cam.to_dict()) == cam
+
+
+def test_non_square_pixels_give_both_fields_of_view():
+    cam = Camera.pinhole(512, 480, 25.84, fov_y_deg=20.33)
+    assert cam.fov_x_deg == pytest.approx(25.84, abs=1e-9)
+    assert cam.fov_y_deg == pytest.approx(20.33, abs=1e-9)
+    with pytest.raises(ValueError, match="fov_y_deg"):
+        Camera.pinhole(512, 480, 25.84, fov_y_deg=-1.0)
 
 
 def test_renken_camera_matches_thesis_constants():

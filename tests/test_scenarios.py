@@ -96,7 +96,7 @@ def test_config_is_json_and_complete(oedipus_5s) -> None:
     assert cfg["seed"] == 1 and cfg["scenario"] == "oedipus"
     assert cfg["gyro"]["rate_hz"] == 200.0 and cfg["mag"]["rate_hz"] == 50.0
     assert cfg["camera"]["fps"] == 30.0 and cfg["camera"]["width"] == 512
-    assert cfg["camera"]["fov_y_deg"] == pytest.approx(24.274, abs=1e-3)
+    assert cfg["camera"]["fov_y_deg"] == pytest.approx(20.33, abs=1e-3)
     assert cfg["dynamics"]["spin_rev_s"] == 0.5 and cfg["launch_utc"].startswith("1995-11-07")
     assert cfg["sensor"]["intensifier"]["gain_e"] > 0 and len(cfg["tethers"]) == 1
     assert json.loads(json.dumps(leo(duration_s=1.0).config))["orbit"]["altitude_m"] == 500e3
