@@ -1,0 +1,43 @@
+"""The command line, as a newcomer runs it."""
+
+from __future__ import annotations
+
+import json
+
+from adfusion.cli import main
+
+
+def test_help_lists_the_commands(capsys):
+    try:
+        main(["--help"])
+    except SystemExit as e:
+        assert e.code == 0
+    out = capsys.readouterr().out
+    for cmd in ("detect", "solve", "simulate", "replay", "report", "demo", "bench", "catalog"):
+        assert cmd in out
+
+
+def test_catalog_prints_renken_table(capsys):
+    assert main(["catalog", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["sao"] for r in rows][-1] == 4480
+    assert all(r["ours_V"] > 0 and r["ours_Hp"] > 0 for r in rows)
+    assert main(["catalog"]) == 0
+    assert "SAO" in capsys.readouterr().out
+
+
+def test_solve_and_detect_the_builtin_example(capsys, tmp_path):
+    assert main(["solve", "--example", "--json", "--overlay", str(tmp_path / "o.png")]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["ok"] and res["error_vs_truth_arcsec"] < 10 and len(res["matches"]) >= 10
+    assert (tmp_path / "o.png").stat().st_size > 10_000
+    assert main(["detect", "--example", "--json"]) == 0
+    det = json.loads(capsys.readouterr().out)
+    assert det["truth_found"] >= 0.95 * det["truth_total"]
+
+
+def test_errors_are_messages_not_tracebacks(capsys, tmp_path):
+    assert main(["solve", str(tmp_path / "missing.png"), "--fov", "10"]) == 2
+    assert "error" in capsys.readouterr().err
+    assert main(["solve"]) == 2
+    assert main(["simulate", "oedipus", "-o", str(tmp_path / "x.mcap"), "--duration", "0"]) == 2
