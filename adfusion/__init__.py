@@ -14,8 +14,9 @@ Example:
 
 from adfusion.estimator import Estimator, StepRecord
 from adfusion.mekf import MEKF, UpdateResult
+from adfusion.ratefilter import RateMEKF
 from adfusion.ukf import UKF
 
 __version__ = "0.1.0"
 
-__all__ = ["MEKF", "UKF", "Estimator", "StepRecord", "UpdateResult", "__version__"]
+__all__ = ["MEKF", "UKF", "Estimator", "RateMEKF", "StepRecord", "UpdateResult", "__version__"]

@@ -83,6 +83,10 @@ class Estimator:
         widen_per_miss: factor by which the tracking cone grows after each miss.
         min_cone_deg: the smallest tracking σ handed to the solver (centroid noise, lens
             residuals and timing make a perfectly confident prediction wrong).
+        video_only: no gyro — the filter is :class:`adfusion.ratefilter.RateMEKF`, which
+            estimates the body rate itself (constant rate plus a random walk of spectral
+            density ``rate_walk_rad_s_sqrt_s``, initial 1-σ ``sigma_rate0_rad_s``); its
+            prediction drives tracking between frames as the gyro would.
         fix_covariance_scale: star-fix covariance multiplier. Fixes from consecutive
             frames share their errors (the same stars, streak geometry, catalogue and lens
             residuals); a filter that takes them as independent grows overconfident. On the
@@ -107,10 +111,16 @@ class Estimator:
         min_cone_deg: float = 0.02,
         fix_covariance_scale: float = 4.0,
         detect: Callable | None = None,
+        video_only: bool = False,
+        rate_walk_rad_s_sqrt_s: float = 0.025,
+        sigma_rate0_rad_s: float = 5.0,
     ) -> None:
         if not fix_covariance_scale >= 1.0:
             raise ValueError(f"fix_covariance_scale must be ≥ 1, got {fix_covariance_scale}")
         self.fix_covariance_scale = float(fix_covariance_scale)
+        self.video_only = bool(video_only)
+        self.rate_walk = float(rate_walk_rad_s_sqrt_s)
+        self.sigma_rate0 = float(sigma_rate0_rad_s)
         self.solver = solver
         self.q_body_cam = rot.normalize(q_body_cam)
         self.q_cam_body = rot.inverse(self.q_body_cam)
@@ -135,6 +145,10 @@ class Estimator:
         return self.filter is not None
 
     def _make_filter(self, q_body_icrs: NDArray, sigma_att_rad: float):
+        if self.video_only:
+            from adfusion.ratefilter import RateMEKF
+
+            return RateMEKF(q_body_icrs, sigma_att_rad, self.sigma_rate0, self.rate_walk)
         return self.filter_factory(q_body_icrs, sigma_att_rad, self.sigma_bias0, self.arw,
                                    self.rrw)
 
@@ -163,7 +177,9 @@ class Estimator:
                                          "all inputs of this step ignored"))
             return self._finish(rec)
         self._propagate_to(float(t), rec)
-        if gyro is not None:
+        if gyro is not None and self.video_only:
+            rec.rejected.append(("gyro", "video-only estimator: gyro samples are ignored"))
+        elif gyro is not None:
             g = np.asarray(gyro, dtype=np.float64).reshape(-1)
             if g.shape != (3,) or not np.all(np.isfinite(g)):
                 rec.rejected.append(("gyro", f"not a finite 3-vector: {g.tolist()}"))
@@ -180,9 +196,9 @@ class Estimator:
 
     def _propagate_to(self, t: float, rec: StepRecord) -> None:
         if self.t is not None and self.filter is not None and t > self.t:
-            if self._omega_hold is not None:
+            if self._omega_hold is not None and not self.video_only:
                 self.filter.propagate(t - self.t, self._omega_hold)
-            else:  # no rate information: hold the attitude, let the covariance grow
+            else:  # video-only: the rate filter uses its own rate; else hold the attitude
                 self.filter.propagate(t - self.t, self.filter.bias_rad_s)
         self.t = t
 

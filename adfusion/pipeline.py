@@ -125,7 +125,10 @@ def replay(
     mag_limit: float | None = None,
     progress: bool = True,
 ) -> ReplaySummary:
-    """Replay ``in_path`` through detection → identification → filter into ``out_path``."""
+    """Replay ``in_path`` through detection → identification → filter into ``out_path``.
+
+    ``use_gyro=False`` is the video-only mode (the real OEDIPUS-C case: no gyro was
+    digitised): the filter estimates the body rate from the star fixes themselves."""
     t_start = time.perf_counter()
     reader = McapLogReader(in_path)
     model = reader.camera_model()
@@ -142,7 +145,8 @@ def replay(
     solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5))
     est = Estimator(solver, q_body_cam,
                     arw_rad_sqrt_s=float(gyro_cfg.get("arw_rad_sqrt_s", 1e-4)),
-                    rrw_rad_s_sqrt_s=float(gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6)))
+                    rrw_rad_s_sqrt_s=float(gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6)),
+                    video_only=not use_gyro)
     summary = ReplaySummary()
     truth_q: np.ndarray | None = None
     messages = reader if not progress else _progress(reader)
