@@ -89,3 +89,36 @@ def test_cli_demo_and_report(tmp_path, capsys):
     assert {"/camera/image", "/camera/annotations", "/starid/solution", "/estimate/state",
             "/estimate/pose", "/tf", "/imu/gyro", "/mag", "/truth/state"} <= names
     assert np.isfinite(len(names))
+
+
+def test_a_replay_killed_mid_run_leaves_a_readable_log(rendered, tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    _, sim = rendered
+    out = tmp_path / "killed.mcap"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    proc = subprocess.Popen([sys.executable, "-m", "adfusion.cli", "replay", str(sim), "-o",
+                             str(out)], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    while time.time() < deadline and (not out.exists() or out.stat().st_size < 3_000_000):
+        time.sleep(0.05)
+        if proc.poll() is not None:
+            break
+    if proc.poll() is not None:
+        pytest.skip("the replay finished before it could be killed")
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the reader warns where the file broke
+        reader = McapLogReader(out)
+        msgs = list(reader)
+    frames = [m for m in msgs if m.topic == "/estimate/state"]
+    assert len(frames) >= 5  # everything up to the last complete chunk
+    assert reader.problem is not None  # and it says where the file ended
