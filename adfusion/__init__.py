@@ -12,11 +12,34 @@ Example:
     0.0573
 """
 
-from adfusion.estimator import Estimator, StepRecord
-from adfusion.mekf import MEKF, UpdateResult
-from adfusion.ratefilter import RateMEKF
-from adfusion.ukf import UKF
+from importlib import import_module
+from typing import TYPE_CHECKING
 
 __version__ = "0.1.0"
+
+# Loaded on first use (PEP 562), so `adfusion --help` and light scripts do not pay for
+# OpenCV, SciPy and filterpy at import time.
+_LAZY = {
+    "Estimator": "adfusion.estimator",
+    "StepRecord": "adfusion.estimator",
+    "MEKF": "adfusion.mekf",
+    "UpdateResult": "adfusion.mekf",
+    "RateMEKF": "adfusion.ratefilter",
+    "UKF": "adfusion.ukf",
+}
+
+if TYPE_CHECKING:  # pragma: no cover
+    from adfusion.estimator import Estimator, StepRecord
+    from adfusion.mekf import MEKF, UpdateResult
+    from adfusion.ratefilter import RateMEKF
+    from adfusion.ukf import UKF
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'adfusion' has no attribute {name!r}")
 
 __all__ = ["MEKF", "UKF", "Estimator", "RateMEKF", "StepRecord", "UpdateResult", "__version__"]

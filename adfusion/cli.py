@@ -17,8 +17,6 @@ import sys
 import time
 from collections.abc import Sequence
 
-from adfusion import examples
-
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -117,6 +115,8 @@ def cmd_detect(args: argparse.Namespace) -> int:
         raise ValueError("give an IMAGE or --example (one of them)")
     truth_xy = None
     if args.example:
+        from adfusion import examples
+
         ex = examples.example_frame()
         image, camera, truth_xy = ex.image, ex.camera, ex.star_xy
         print(f"example: {ex.description}", file=sys.stderr)
@@ -139,7 +139,9 @@ def cmd_detect(args: argparse.Namespace) -> int:
         ],
     }
     if truth_xy is not None:
-        out["truth_found"] = examples.count_found(det.xy, truth_xy, radius_px=1.0)
+        from adfusion.examples import count_found
+
+        out["truth_found"] = count_found(det.xy, truth_xy, radius_px=1.0)
         out["truth_total"] = len(truth_xy)
     if args.json:
         print(json.dumps(out, indent=2))
@@ -167,6 +169,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
     epoch = args.epoch if args.epoch is not None else _julian_year_now()
     truth_q = None
     if args.example:
+        from adfusion import examples
+
         ex = examples.example_frame()
         image, camera, truth_q = ex.image, ex.camera, ex.q_cam_icrs
         print(f"example: {ex.description}", file=sys.stderr)
