@@ -271,7 +271,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise ValueError("--duration must be positive")
     t0 = time.perf_counter()
     n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render),
-                 args.output)
+                 args.output, progress=sys.stderr.isatty())
     print(f"{args.scenario}: {n} frames, {args.duration:g} s, seed {args.seed} → "
           f"{args.output} ({time.perf_counter() - t0:.1f} s)")
     return 0
@@ -304,7 +304,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     sim, rep = out / "flight.mcap", out / "replay.mcap"
-    n = simulate(_scenario("oedipus", args.duration, 0, True), sim)
+    n = simulate(_scenario("oedipus", args.duration, 0, True), sim,
+                 progress=sys.stderr.isatty())
     print(f"simulated an OEDIPUS-C-like flight: {n} intensified frames + gyro + magnetometer "
           f"→ {sim} ({time.perf_counter() - t0:.1f} s)")
     s = replay(sim, rep, progress=sys.stderr.isatty())

@@ -38,9 +38,16 @@ from starid.solver import Solver
 __all__ = ["ReplaySummary", "replay", "simulate"]
 
 
-def simulate(scenario, out_path: str | Path) -> int:
-    """Write a scenario's events to ``out_path``; returns the number of frames."""
+def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
+    """Write a scenario's events to ``out_path``; returns the number of frames.
+    ``progress`` shows a bar of rendered frames on stderr."""
     frames = 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(scenario.t_frame), unit="frame", desc="simulate",
+                   mininterval=0.5)
     with LogWriter(out_path) as log:
         log.add_metadata("config", _jsonable(scenario.config))
         log.add_camera_model(scenario.camera.to_dict())
@@ -60,6 +67,8 @@ def simulate(scenario, out_path: str | Path) -> int:
                                            "b_ref_icrs": d["b_ref_icrs_nT"]})
             else:
                 frames += 1
+                if bar is not None:
+                    bar.update()
                 if "image" in d:
                     log.write_image(t, d["image"], "camera")
                 else:  # a centroid-only simulation: the detections are the "image"
@@ -67,6 +76,8 @@ def simulate(scenario, out_path: str | Path) -> int:
                 q_body_true = rot.multiply(q_body_cam, d["q_cam_icrs"])
                 log.write_attitude("/truth/pose", t, q_body_true)
                 log.write_tf(t, [("body_truth", "camera", q_body_cam, (0.0, 0.0, 0.0))])
+    if bar is not None:
+        bar.close()
     return frames
 
 
