@@ -467,7 +467,8 @@ class Solver:
         cannot pair stars crosswise: every predicted star takes its nearest detection
         within the wide gate (k·σ), the median image offset of those pairs corrects the
         prior's pointing, pairs are redone within a medium radius (what is left is roll),
-        then Wahba and re-association within the tight radius, twice. ``p_false`` is the
+        then Wahba and re-association within the tight radius, twice. With a tight prior
+        (gate ≤ 2.5 match radii) the nearest pairs are taken directly. ``p_false`` is the
         chance that this many of the M detections fall within the tight radius of
         predicted stars by accident, times
         the number of alternative pairings the wide gates allowed.
@@ -483,37 +484,48 @@ class Solver:
         tight = self._match_radius_px()
         wide = max(prior.k * prior.sigma_deg * np.pi / 180 * f_px * 1.2 + tight, tight)
         tree = cKDTree(xy)
-        d, j = tree.query(pred_xy, distance_upper_bound=wide)
+        d2, j2 = tree.query(pred_xy, k=2, distance_upper_bound=wide)
+        d, j = d2[:, 0], j2[:, 0]
         hit = np.isfinite(d)
         if hit.sum() < 2:
             return Solution(False, f"{int(hit.sum())} predicted star(s) with a detection in "
                                    f"the gate", mode="tracking")
         # alternative pairings inside the wide gates (1 each when the prior is tight)
-        n_alt = np.array([len(c) for c in tree.query_ball_point(pred_xy[hit], wide)])
-        shift = np.median(xy[j[hit]] - pred_xy[hit], axis=0)
-        b_all = cam.pixels_to_vectors(xy)
-        # after the shift what is left is mostly roll (largest at the edges): pair within
-        # a medium radius, then tighten through two fits
-        medium = max(tight, 0.3 * wide)
-        det_i, cat_i = _pair_within(xy, pred_xy + shift, pred_idx, medium)
-        predicted = np.zeros(len(self.vectors), dtype=bool)
-        predicted[pred_idx] = True
-        for _ in range(2):
-            if len(det_i) < 2:
-                break
-            R = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
-            if R is None:
-                return Solution(False, "tracked stars are collinear", mode="tracking")
-            det_i, cat_i = self._associate_icrs(b_all, R, tight * cam.pixel_scale_rad)
-            # keep only stars the prior predicted (tracking never jumps elsewhere)
-            keep = predicted[cat_i]
-            det_i, cat_i = det_i[keep], cat_i[keep]
+        n_alt = 1 + np.isfinite(d2[hit, 1]).astype(np.int64)
+        if wide <= 2.5 * tight:
+            # a tight prior (the steady state of a running filter): the gates are nearly
+            # the match radius, so the nearest pairs are the answer — one fit, no rounds
+            p_sel, det_sel = _one_to_one(d, j)
+            order = np.argsort(det_sel)
+            det_i, cat_i = det_sel[order], pred_idx[p_sel[order]]
+            b_all = cam.pixels_to_vectors(xy[det_i])
+            b_use = b_all
+        else:
+            shift = np.median(xy[j[hit]] - pred_xy[hit], axis=0)
+            b_all = cam.pixels_to_vectors(xy)
+            # after the shift what is left is mostly roll (largest at the edges): pair
+            # within a medium radius, then tighten through two fits
+            medium = max(tight, 0.3 * wide)
+            det_i, cat_i = _pair_within(xy, pred_xy + shift, pred_idx, medium)
+            predicted = np.zeros(len(self.vectors), dtype=bool)
+            predicted[pred_idx] = True
+            for _ in range(2):
+                if len(det_i) < 2:
+                    break
+                R = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+                if R is None:
+                    return Solution(False, "tracked stars are collinear", mode="tracking")
+                det_i, cat_i = self._associate_icrs(b_all, R, tight * cam.pixel_scale_rad)
+                # keep only stars the prior predicted (tracking never jumps elsewhere)
+                keep = predicted[cat_i]
+                det_i, cat_i = det_i[keep], cat_i[keep]
+            b_use = b_all[det_i]
         if len(det_i) < 2:
             return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
                             mode="tracking")
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
         try:
-            w = wahba_unit(b_all[det_i], self.vectors[cat_i], sigma)
+            w = wahba_unit(b_use, self.vectors[cat_i], sigma)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
         offset = float(rot.angle_between(w.q_cam_icrs, q0))
