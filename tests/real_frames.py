@@ -18,6 +18,7 @@ import numpy as np
 from starid import Camera
 from starid import rotations as rot
 from starid.calibrate import CameraFit, fit_camera
+from starid.view import stars_in_view
 
 OBS_EPOCH = 2019.575  # 2019-07-29
 
@@ -55,14 +56,6 @@ def grid_errors_deg(frame: RealFrame, camera: Camera, q_cam_icrs: np.ndarray) ->
     return np.degrees(np.arccos(cosang))
 
 
-def projected_stars(frame: RealFrame, vectors_icrs: np.ndarray) -> np.ndarray:
+def projected_stars(frame: RealFrame, catalog) -> tuple[np.ndarray, np.ndarray]:
     """Indices and pixel positions of catalogue stars inside the frame at the reference fit."""
-    v = rot.rotate(frame.fit.q_cam_icrs, vectors_icrs)
-    front = np.flatnonzero(v[:, 2] > 0)
-    xy = frame.fit.camera.vectors_to_pixels(v[front])
-    inside = frame.fit.camera.in_frame(xy)
-    return front[inside], xy[inside]
-
-
-def load_json(path: Path) -> dict:
-    return json.loads(Path(path).read_text())
+    return stars_in_view(catalog, frame.fit.camera, frame.fit.q_cam_icrs)

@@ -44,11 +44,11 @@ def test_detect_finds_catalogue_stars_in_real_frames(frames, hip6, hip9):
     for f in frames:
         det = starid.detect(f.path)
         assert det.ok, det.reason
-        _, xy6 = projected_stars(f, hip6.vectors)
+        _, xy6 = projected_stars(f, hip6)
         assert len(xy6) >= 3
         d6, _ = cKDTree(det.xy).query(xy6)
         found = float(np.mean(d6 < 2.0))
-        _, xy9 = projected_stars(f, hip9.vectors)
+        _, xy9 = projected_stars(f, hip9)
         d9, _ = cKDTree(xy9).query(det.xy)
         purity = float(np.mean(d9 < 2.0))
         rows.append((f.name, len(det), len(xy6), found, purity))
