@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
@@ -189,7 +190,7 @@ class Camera:
         return self._edge_angle_deg(np.array([[self.K[0, 2], -0.5], [self.K[0, 2],
                                                                       self.height - 0.5]]))
 
-    @property
+    @cached_property
     def diagonal_fov_deg(self) -> float:
         """The largest angle between two points of the frame (corner to opposite corner)."""
         c = self.corners()

@@ -254,7 +254,6 @@ class Solver:
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
         self._tree = cKDTree(self.vectors)
-        self._memo: dict = {}
 
     # --- public -----------------------------------------------------------------------
 
@@ -718,7 +717,7 @@ class Solver:
         lets stars just outside the frame in (a prior's error can bring them in)."""
         R = rot.to_matrix(q)
         boresight = R[2]  # the camera +z axis in ICRS: third row of R(q_cam_icrs)
-        half = self._half_diag_rad(cam) + margin_rad + 1e-3
+        half = 0.5 * np.radians(cam.diagonal_fov_deg) + margin_rad + 1e-3
         idx = np.array(self._tree.query_ball_point(boresight, 2 * np.sin(half / 2)),
                        dtype=np.int64)
         if len(idx) == 0:
@@ -729,14 +728,6 @@ class Solver:
         pxy = cam.vectors_to_pixels(v)
         inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
         return pxy[inside], self.ids[idx[inside]], idx[inside]
-
-    def _half_diag_rad(self, cam: Camera) -> float:
-        if cam is self.camera:  # the tracking hot path: no key building
-            val = self._memo.get("half_diag")
-            if val is None:
-                val = self._memo["half_diag"] = 0.5 * np.radians(cam.diagonal_fov_deg)
-            return val
-        return 0.5 * np.radians(cam.diagonal_fov_deg)
 
     def _solution(self, c: Candidate, counter: int, path: str,
                   cands: list[Candidate]) -> Solution:
