@@ -83,6 +83,8 @@ class Estimator:
         widen_per_miss: factor by which the tracking cone grows after each miss.
         min_cone_deg: the smallest tracking σ handed to the solver (centroid noise, lens
             residuals and timing make a perfectly confident prediction wrong).
+        sigma_mag_rad: 1-σ direction error of a magnetometer update (field model and
+            hard/soft-iron residuals dominate, hence a degree by default).
         video_only: no gyro — the filter is :class:`adfusion.ratefilter.RateMEKF`, which
             estimates the body rate itself (constant rate plus a random walk of spectral
             density ``rate_walk_rad_s_sqrt_s``, initial 1-σ ``sigma_rate0_rad_s``); its
@@ -111,6 +113,7 @@ class Estimator:
         min_cone_deg: float = 0.02,
         fix_covariance_scale: float = 4.0,
         detect: Callable | None = None,
+        sigma_mag_rad: float = np.radians(1.0),
         video_only: bool = False,
         rate_walk_rad_s_sqrt_s: float = 0.025,
         sigma_rate0_rad_s: float = 5.0,
@@ -118,6 +121,7 @@ class Estimator:
         if not fix_covariance_scale >= 1.0:
             raise ValueError(f"fix_covariance_scale must be ≥ 1, got {fix_covariance_scale}")
         self.fix_covariance_scale = float(fix_covariance_scale)
+        self.sigma_mag_rad = float(sigma_mag_rad)
         self.video_only = bool(video_only)
         self.rate_walk = float(rate_walk_rad_s_sqrt_s)
         self.sigma_rate0 = float(sigma_rate0_rad_s)
@@ -293,7 +297,6 @@ class Estimator:
         if not res.accepted:
             rec.rejected.append(("mag", res.reason))
 
-    sigma_mag_rad: float = np.radians(1.0)
 
     def _finish(self, rec: StepRecord) -> StepRecord:
         if self.filter is not None:
