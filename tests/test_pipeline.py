@@ -88,7 +88,6 @@ def test_cli_demo_and_report(tmp_path, capsys):
     names = {m.topic for m in McapLogReader(tmp_path / "replay.mcap")}
     assert {"/camera/image", "/camera/annotations", "/starid/solution", "/estimate/state",
             "/estimate/pose", "/tf", "/imu/gyro", "/mag", "/truth/state"} <= names
-    assert np.isfinite(len(names))
 
 
 def test_a_replay_killed_mid_run_leaves_a_readable_log(rendered, tmp_path):
