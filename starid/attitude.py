@@ -74,29 +74,53 @@ def wahba_unit(b: NDArray[np.float64], r: NDArray[np.float64],
                sigma_rad: float | NDArray[np.float64]) -> WahbaSolution:
     """:func:`wahba` without input checks, for unit vectors already validated (the
     solver's hot path). ``sigma_rad`` is a scalar or one value per pair."""
-    if np.ndim(sigma_rad) == 0:
-        w = 1.0 / float(sigma_rad) ** 2
-        B = w * (b.T @ r)  # attitude profile matrix Σ w b rᵀ
-        F = w * (len(b) * np.eye(3) - b.T @ b)  # Σ w (I − b bᵀ)
-        wres = w
+    if isinstance(sigma_rad, float) or np.ndim(sigma_rad) == 0:
+        wres = 1.0 / float(sigma_rad) ** 2
+        B = b.T @ r  # attitude profile matrix, up to the weight (the SVD ignores scale)
+        S = b.T @ b  # F = wres·(n·I − S)
+        w_sum, scale = float(len(b)), wres
     else:
-        wv = 1.0 / np.asarray(sigma_rad, dtype=np.float64) ** 2
-        wb = wv[:, None] * b
+        wres = 1.0 / np.asarray(sigma_rad, dtype=np.float64) ** 2
+        wb = wres[:, None] * b
         B = wb.T @ r
-        F = np.sum(wv) * np.eye(3) - wb.T @ b
-        wres = wv
+        S = wb.T @ b
+        w_sum, scale = float(np.sum(wres)), 1.0
     u, _, vt = np.linalg.svd(B)
     R = u @ vt
     (a0, a1, a2), (b0, b1, b2), (c0, c1, c2) = R.tolist()
     if a0 * (b1 * c2 - b2 * c1) - a1 * (b0 * c2 - b2 * c0) + a2 * (b0 * c1 - b1 * c0) < 0:
         u[:, 2] = -u[:, 2]  # nearest proper rotation, not a reflection
         R = u @ vt
-    lam, vec = np.linalg.eigh(F)
-    if lam[0] <= 1e-12 * lam[-1]:
-        raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
-    P = (vec / lam) @ vec.T  # F⁻¹ from its eigendecomposition, symmetric by construction
+    P = _inverse_information(S.tolist(), w_sum, scale)
     pred = r @ R.T
-    chord = np.sqrt(np.sum((pred - b) ** 2, axis=1))
-    res = 2.0 * np.arcsin(np.minimum(0.5 * chord, 1.0))  # exact, and cheaper than atan2
+    pred -= b
+    res = np.sqrt(np.einsum("ij,ij->i", pred, pred))  # chord, then the exact angle
+    res *= 0.5
+    res = 2.0 * np.arcsin(np.minimum(res, 1.0, out=res), out=res)
     q = rot.from_matrix(R, orthonormalize=False)
-    return WahbaSolution(q, P, res, float(np.sum(wres * res**2)))
+    loss = wres * float(res @ res) if isinstance(wres, float) else float(wres @ res**2)
+    return WahbaSolution(q, P, res, loss)
+
+
+def _inverse_information(S: list[list[float]], w_sum: float,
+                         scale: float = 1.0) -> NDArray[np.float64]:
+    """``(scale·(w_sum·I − S))⁻¹`` for the symmetric 3×3 ``S = Σ w b bᵀ`` by the adjugate, in
+    plain floats (numpy's per-call overhead dominates at 3×3). Its determinant is the
+    product of F's eigenvalues, each in [0, w_sum]: ``det ≤ 1e-12·tr³`` means the
+    smallest is ≲ 1e-12 of the largest — collinear directions."""
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
+    f00, f11, f22 = w_sum - s00, w_sum - s11, w_sum - s22
+    f01, f02, f12 = -s01, -s02, -s12
+    c00 = f11 * f22 - f12 * f12
+    c01 = f02 * f12 - f01 * f22
+    c02 = f01 * f12 - f02 * f11
+    det = f00 * c00 + f01 * c01 + f02 * c02
+    tr = f00 + f11 + f22
+    if not det > 1e-12 * tr**3:
+        raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
+    c11 = f00 * f22 - f02 * f02
+    c12 = f01 * f02 - f00 * f12
+    c22 = f00 * f11 - f01 * f01
+    k = 1.0 / (det * scale)
+    return np.array([[c00 * k, c01 * k, c02 * k], [c01 * k, c11 * k, c12 * k],
+                     [c02 * k, c12 * k, c22 * k]])

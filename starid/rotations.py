@@ -102,6 +102,15 @@ def normalize(q: ArrayLike) -> Array:
     [1.0, 0.0, 0.0, 0.0]
     """
     q = _as_quat(q)
+    if q.ndim == 1:  # scalar fast path (priors, filters: once per step)
+        w, x, y, z = q.tolist()
+        n = math.hypot(w, x, y, z)
+        if not (math.isfinite(n) and n > 0.0):
+            raise ValueError("cannot normalise a zero or non-finite quaternion")
+        if w < 0.0 or (w == 0.0 and (x < 0.0 or (x == 0.0 and (y < 0.0 or (
+                y == 0.0 and z < 0.0))))):
+            n = -n
+        return np.array([w / n, x / n, y / n, z / n])
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     if not np.all(np.isfinite(q)) or np.any(n == 0.0):
         raise ValueError("cannot normalise a zero or non-finite quaternion")
@@ -194,16 +203,16 @@ def _from_matrix_single(r: Array) -> Array:
     tr = m00 + m11 + m22
     k = max(range(4), key=(tr, m00, m11, m22).__getitem__)
     if k == 0:
-        t = 2.0 * np.sqrt(max(1.0 + tr, 0.0))
+        t = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
         q = [0.25 * t, (m21 - m12) / t, (m02 - m20) / t, (m10 - m01) / t]
     elif k == 1:
-        t = 2.0 * np.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
+        t = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
         q = [(m21 - m12) / t, 0.25 * t, (m01 + m10) / t, (m02 + m20) / t]
     elif k == 2:
-        t = 2.0 * np.sqrt(max(1.0 - m00 + m11 - m22, 0.0))
+        t = 2.0 * math.sqrt(max(1.0 - m00 + m11 - m22, 0.0))
         q = [(m02 - m20) / t, (m01 + m10) / t, 0.25 * t, (m12 + m21) / t]
     else:
-        t = 2.0 * np.sqrt(max(1.0 - m00 - m11 + m22, 0.0))
+        t = 2.0 * math.sqrt(max(1.0 - m00 - m11 + m22, 0.0))
         q = [(m10 - m01) / t, (m02 + m20) / t, (m12 + m21) / t, 0.25 * t]
     n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) ** 0.5
     lead = next((c for c in q if c != 0.0), 1.0)  # canonical sign, as in canonical()

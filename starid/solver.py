@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -69,6 +70,8 @@ from starid.verify import (
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
+_CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
+
 
 @dataclass(frozen=True)
 class Prior:
@@ -84,11 +87,16 @@ class Prior:
 
     def __post_init__(self) -> None:
         q = np.asarray(self.q_cam_icrs, dtype=np.float64)
-        if q.shape != (4,) or not np.all(np.isfinite(q)) or np.linalg.norm(q) == 0:
-            raise ValueError("Prior.q_cam_icrs must be a finite, non-zero quaternion [w,x,y,z]")
-        if not (np.isfinite(self.sigma_deg) and self.sigma_deg > 0):
+        if q.shape != (4,):
+            raise ValueError("Prior.q_cam_icrs must be a quaternion [w,x,y,z]")
+        try:
+            q = rot.normalize(q)
+        except ValueError:
+            raise ValueError("Prior.q_cam_icrs must be a finite, non-zero quaternion "
+                             "[w,x,y,z]") from None
+        if not (math.isfinite(self.sigma_deg) and self.sigma_deg > 0):
             raise ValueError(f"Prior.sigma_deg must be positive, got {self.sigma_deg}")
-        object.__setattr__(self, "q_cam_icrs", rot.normalize(q))
+        object.__setattr__(self, "q_cam_icrs", q)
 
 
 @dataclass(frozen=True)
@@ -254,6 +262,7 @@ class Solver:
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
         self._tree = cKDTree(self.vectors)
+        self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
 
     # --- public -----------------------------------------------------------------------
 
@@ -273,10 +282,9 @@ class Solver:
         fallback_note = ""
         if prior is not None:
             if prior.k * prior.sigma_deg <= self.max_tracking_cone_deg:
-                sol = self._solve_tracking(xy, prior)
+                sol = self._solve_tracking(xy, prior, t0)
                 if sol.ok:
-                    return _replace(sol, time_s=time.perf_counter() - t0,
-                                    n_detections=len(xy))
+                    return sol
                 fallback_note = f"tracking failed ({sol.reason}); "
             else:
                 fallback_note = (f"prior too loose ({prior.k:g}σ = {prior.k * prior.sigma_deg:.3g}°"
@@ -314,21 +322,31 @@ class Solver:
             xy = arr[:, :2]
         if len(xy) < min_count:
             return xy, f"too few detections ({len(xy)} < {min_count})"
-        if not np.isfinite(xy).all():  # cheap test first, details only when it fails
+        # cheap tests first (a sort for duplicates), details only when they fail: this
+        # runs per frame in the tracking loop
+        if not np.isfinite(xy).all():
             bad = ~np.isfinite(xy).all(axis=1)
             return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at row " \
                        f"{int(np.flatnonzero(bad)[0])}"
         use = xy[: self.max_detections]
-        d2 = np.sum((use[:, None, :] - use[None, :, :]) ** 2, axis=-1)
-        d2.flat[:: len(use) + 1] = np.inf
-        if d2.min() < 1e-12:
-            dup = np.argwhere(d2 < 1e-12)
-            return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
-                       f"{int(dup[0, 1])}"
+        xs = np.sort(use[:, 0])
+        with np.errstate(over="ignore"):  # absurd sizes are reported below
+            gap = float(np.min(xs[1:] - xs[:-1])) if len(xs) > 1 else np.inf
+        if gap < 1e-6:
+            # some x coincide: look for pairs closer than 1e-6 px in both coordinates
+            with np.errstate(over="ignore", invalid="ignore"):  # absurd sizes: below
+                diff = use[:, None, :] - use[None, :, :]
+                d2 = np.einsum("ijk,ijk->ij", diff, diff)
+            d2.flat[:: len(use) + 1] = np.inf
+            if d2.min() < 1e-12:
+                dup = np.argwhere(d2 < 1e-12)
+                return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
+                           f"{int(dup[0, 1])}"
         slack = 0.5 * max(self.camera.width, self.camera.height)
-        lo, hi = use.min(axis=0), use.max(axis=0)
-        if (lo < -0.5 - slack).any() or hi[0] > self.camera.width - 0.5 + slack \
-                or hi[1] > self.camera.height - 0.5 + slack:
+        lo_x, hi_x = float(xs[0]), float(xs[-1])
+        lo_y, hi_y = float(use[:, 1].min()), float(use[:, 1].max())
+        if min(lo_x, lo_y) < -0.5 - slack or hi_x > self.camera.width - 0.5 + slack \
+                or hi_y > self.camera.height - 0.5 + slack:
             outside = ~self.camera.in_frame(use, margin=-slack)
             return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies far " \
                        "outside the frame"
@@ -457,7 +475,7 @@ class Solver:
         reason = f"no match: {budget_note or f'{tried} patterns tried'}"
         return Solution(False, reason, matching_counter=first_counter or 0), tried
 
-    def _solve_tracking(self, xy: NDArray, prior: Prior) -> Solution:
+    def _solve_tracking(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
         """Tracking: predict the catalogue stars in the prior's field, associate the
         detections inside the prior's gate, refine, and accept with ≥ 2 stars when a
         chance coincidence is improbable.
@@ -469,36 +487,49 @@ class Solver:
         then Wahba and re-association within the tight radius, twice. With a tight prior
         (gate ≤ 2.5 match radii) the nearest pairs are taken directly. ``p_false`` is the
         chance that this many of the M detections fall within the tight radius of
-        predicted stars by accident, times
-        the number of alternative pairings the wide gates allowed.
+        predicted stars by accident, times the number of alternative pairings the wide
+        gates allowed.
+
+        This runs once per frame in a filter loop with a few dozen stars, so it is written
+        for numpy's per-call overhead: a cached catalogue cone, one brute-force distance
+        matrix instead of a KD-tree, and no intermediate copies of the result.
         """
         cam = self.camera
         q0 = prior.q_cam_icrs
-        gate_rad = np.radians(prior.k * prior.sigma_deg)
-        pred_xy, _, pred_idx = self._project_idx(q0, cam, margin_rad=gate_rad)
+        gate_rad = math.radians(prior.k * prior.sigma_deg)
+        R0 = rot.to_matrix(q0)
+        pred_xy, pred_idx = self._predict(R0, cam, gate_rad)
         if len(pred_xy) < 2:
             return Solution(False, f"{len(pred_xy)} catalogue star(s) predicted in view",
                             mode="tracking")
-        f_px = 1.0 / cam.pixel_scale_rad
+        pix_rad = cam.pixel_scale_rad
         tight = self._match_radius_px()
-        wide = max(prior.k * prior.sigma_deg * np.pi / 180 * f_px * 1.2 + tight, tight)
-        tree = cKDTree(xy)
-        d2, j2 = tree.query(pred_xy, k=2, distance_upper_bound=wide)
-        d, j = d2[:, 0], j2[:, 0]
-        hit = np.isfinite(d)
-        if hit.sum() < 2:
-            return Solution(False, f"{int(hit.sum())} predicted star(s) with a detection in "
-                                   f"the gate", mode="tracking")
+        wide = max(gate_rad / pix_rad * 1.2 + tight, tight)
+        # predicted stars × detections: a few dozen each, cheaper than building a tree
+        dx = pred_xy[:, :1] - xy[:, 0]
+        dy = pred_xy[:, 1:] - xy[:, 1]
+        d2 = dx * dx
+        d2 += dy * dy
+        n_within = (d2 <= wide * wide).sum(axis=1)
+        hit = n_within > 0
+        n_hit = int(hit.sum())
+        if n_hit < 2:
+            return Solution(False, f"{n_hit} predicted star(s) with a detection in the gate",
+                            mode="tracking")
+        j = d2.argmin(axis=1)  # the nearest detection (inside the gate where hit)
         # alternative pairings inside the wide gates (1 each when the prior is tight)
-        n_alt = 1 + np.isfinite(d2[hit, 1]).astype(np.int64)
+        n_hyp = 2.0 ** int((n_within >= 2).sum())
         if wide <= 2.5 * tight:
             # a tight prior (the steady state of a running filter): the gates are nearly
             # the match radius, so the nearest pairs are the answer — one fit, no rounds
-            p_sel, det_sel = _one_to_one(d, j)
+            p_sel = np.flatnonzero(hit)
+            det_sel = j[p_sel]
+            if len(set(det_sel.tolist())) < len(det_sel):  # a detection claimed twice
+                d = np.where(hit, np.sqrt(d2[np.arange(len(j)), j]), np.inf)
+                p_sel, det_sel = _one_to_one(d, j)
             order = np.argsort(det_sel)
             det_i, cat_i = det_sel[order], pred_idx[p_sel[order]]
-            b_all = cam.pixels_to_vectors(xy[det_i])
-            b_use = b_all
+            b_use = cam.pixels_to_vectors(xy[det_i])
         else:
             shift = np.median(xy[j[hit]] - pred_xy[hit], axis=0)
             b_all = cam.pixels_to_vectors(xy)
@@ -514,7 +545,7 @@ class Solver:
                 R = _rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
                 if R is None:
                     return Solution(False, "tracked stars are collinear", mode="tracking")
-                det_i, cat_i = self._associate_icrs(b_all, R, tight * cam.pixel_scale_rad)
+                det_i, cat_i = self._associate_icrs(b_all, R, tight * pix_rad)
                 # keep only stars the prior predicted (tracking never jumps elsewhere)
                 keep = predicted[cat_i]
                 det_i, cat_i = det_i[keep], cat_i[keep]
@@ -522,33 +553,34 @@ class Solver:
         if len(det_i) < 2:
             return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
                             mode="tracking")
-        sigma = self.centroid_sigma_px * cam.pixel_scale_rad
         try:
-            w = wahba_unit(b_use, self.vectors[cat_i], sigma)
+            w = wahba_unit(b_use, self.vectors[cat_i], self.centroid_sigma_px * pix_rad)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
-        offset = float(rot.angle_between(w.q_cam_icrs, q0))
-        if offset > gate_rad + 3 * np.sqrt(np.max(np.linalg.eigvalsh(w.covariance))):
-            return Solution(False, f"fix {np.degrees(offset):.3g}° from the prior, outside its "
-                                   f"{prior.k:g}σ gate", mode="tracking")
-        p_hit = min(1.0, len(pred_xy) * np.pi * tight**2 / (cam.width * cam.height))
-        n_hyp = float(np.prod(np.maximum(n_alt, 1)))
+        offset = _angle_between_unit(w.q_cam_icrs, q0)
+        # trace(P) ≥ its largest eigenvalue: a bound, at most √3 too wide, for free
+        sigma_fix = math.sqrt(float(w.covariance.trace()))
+        if offset > gate_rad + 3 * sigma_fix:
+            return Solution(False, f"fix {math.degrees(offset):.3g}° from the prior, outside "
+                                   f"its {prior.k:g}σ gate", mode="tracking")
+        p_hit = min(1.0, len(pred_xy) * math.pi * tight**2 / (cam.width * cam.height))
         p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
         cov = w.covariance * _variance_factor(w)
+        matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
         cand = Candidate(
-            q_cam_icrs=w.q_cam_icrs,
-            matches=[(int(a), int(self.ids[c])) for a, c in zip(det_i, cat_i, strict=True)],
-            residuals_rad=w.residuals_rad, p_false=p_false, n_pattern=len(det_i),
-            camera=cam, covariance=cov, _projector=self._project,
+            q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,
+            p_false=p_false, n_pattern=len(det_i), camera=cam, covariance=cov,
+            _projector=self._project,
         )
         if p_false > self.p_false_max_tracking:
             return Solution(False, f"ambiguous: {len(det_i)} tracked stars, p_false "
                                    f"{p_false:.2g} > {self.p_false_max_tracking:.0e}",
                             mode="tracking", candidates=[cand])
-        return Solution(True, "", q_cam_icrs=w.q_cam_icrs, matches=cand.matches,
+        return Solution(True, "", q_cam_icrs=w.q_cam_icrs, matches=matches,
                         matching_counter=1, covariance=cov, mode="tracking",
-                        p_false=p_false, path="tracking", candidates=[cand],
-                        residuals_rad=w.residuals_rad, camera=cam)
+                        time_s=time.perf_counter() - t0, p_false=p_false, path="tracking",
+                        candidates=[cand], residuals_rad=w.residuals_rad, camera=cam,
+                        n_detections=len(xy))
 
     def _solve_triad(self, xy: NDArray) -> Solution:
         """Yee's triad method (:mod:`starid.triad`), then our verification: Yee's voting
@@ -715,19 +747,40 @@ class Solver:
                      ) -> tuple[NDArray, NDArray[np.int64], NDArray[np.int64]]:
         """As :meth:`_project`, plus catalogue indices; ``margin_rad`` widens the cone and
         lets stars just outside the frame in (a prior's error can bring them in)."""
-        R = rot.to_matrix(q)
-        boresight = R[2]  # the camera +z axis in ICRS: third row of R(q_cam_icrs)
-        half = 0.5 * np.radians(cam.diagonal_fov_deg) + margin_rad + 1e-3
-        idx = np.array(self._tree.query_ball_point(boresight, 2 * np.sin(half / 2)),
+        pxy, idx = self._predict(rot.to_matrix(q), cam, margin_rad)
+        return pxy, self.ids[idx], idx
+
+    def _predict(self, R: NDArray, cam: Camera, margin_rad: float,
+                 ) -> tuple[NDArray, NDArray[np.int64]]:
+        """Pixel positions and catalogue indices of the stars in the frame at attitude R
+        (cam ← icrs), ``margin_rad`` beyond its edges."""
+        half = 0.5 * math.radians(cam.diagonal_fov_deg) + margin_rad + 1e-3
+        idx, vec = self._cone(R[2], half)  # R[2]: the camera +z axis in ICRS
+        pxy = cam.vectors_to_pixels(vec @ R.T)
+        m = margin_rad / cam.pixel_scale_rad
+        # Camera.in_frame, inlined (per-frame path); NaN (behind the camera) is outside
+        inside = ((pxy >= -0.5 - m) & (pxy <= (cam.width - 0.5 + m, cam.height - 0.5 + m))
+                  ).all(axis=1)
+        return pxy[inside], idx[inside]
+
+    def _cone(self, axis: NDArray, half_rad: float) -> tuple[NDArray[np.int64], NDArray]:
+        """Catalogue stars (indices, vectors) within at least ``half_rad`` of ``axis``: a
+        superset from a cached cone 2° wider, reused while it still covers the request — a
+        tracking camera moves little between frames, so one KD-tree query serves many.
+        Callers keep only the stars in the frame, so results do not depend on the cache
+        (indices stay sorted, as the tree returns them)."""
+        cache = self._cone_cache
+        if cache is not None:
+            c_axis, c_half, idx, vec = cache
+            spare = c_half - half_rad
+            if spare >= 0 and float(axis @ c_axis) >= math.cos(spare):
+                return idx, vec
+        c_half = min(half_rad + _CONE_SPARE_RAD, math.pi)
+        idx = np.array(self._tree.query_ball_point(axis, 2 * math.sin(c_half / 2)),
                        dtype=np.int64)
-        if len(idx) == 0:
-            return np.zeros((0, 2)), idx, idx
-        v = self.vectors[idx] @ R.T
-        front = v[:, 2] > 0
-        idx, v = idx[front], v[front]
-        pxy = cam.vectors_to_pixels(v)
-        inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
-        return pxy[inside], self.ids[idx[inside]], idx[inside]
+        vec = self.vectors[idx]
+        self._cone_cache = (np.array(axis, dtype=np.float64), c_half, idx, vec)
+        return idx, vec
 
     def _solution(self, c: Candidate, counter: int, path: str,
                   cands: list[Candidate]) -> Solution:
@@ -766,6 +819,15 @@ def _pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
     """Each detection to its nearest predicted star within a radius, one-to-one."""
     det, j = _one_to_one(*cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px))
     return det, pred_idx[j].astype(np.int64)
+
+
+def _angle_between_unit(p: NDArray, q: NDArray) -> float:
+    """Rotation angle between two unit quaternions, 4·atan2(|p∓q|, |p±q|) in floats."""
+    a, b = p.tolist(), q.tolist()
+    sgn = 1.0 if sum(x * y for x, y in zip(a, b, strict=True)) >= 0 else -1.0
+    dm = math.sqrt(sum((x - sgn * y) ** 2 for x, y in zip(a, b, strict=True)))
+    dp = math.sqrt(sum((x + sgn * y) ** 2 for x, y in zip(a, b, strict=True)))
+    return 4.0 * math.atan2(dm, dp)
 
 
 def _variance_factor(w) -> float:

@@ -190,3 +190,21 @@ def test_bad_camera_parameters_raise(kwargs, match):
         Camera.pinhole(640, 480, 0.0)
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         Camera.pinhole(640, 480, 10.0).pixels_to_vectors(np.zeros((3, 3)))
+
+
+def test_distortion_free_fast_path_matches_the_general_model():
+    """A pinhole without distortion takes an affine fast path; a negligible distortion
+    coefficient forces the general one: both agree, including skew, parity and points
+    behind the camera."""
+    K = np.array([[900.0, 2.5, 250.0], [0.0, 910.0, 241.0], [0.0, 0.0, 1.0]])
+    rng = np.random.default_rng(4)
+    xy = rng.uniform(-50, 560, (300, 2))
+    v = rng.normal(size=(300, 3))
+    for parity in (1, -1):
+        fast = Camera(K, np.zeros(5), 512, 480, parity=parity)
+        general = Camera(K, np.array([1e-300, 0, 0, 0, 0]), 512, 480, parity=parity)
+        np.testing.assert_allclose(fast.pixels_to_vectors(xy), general.pixels_to_vectors(xy),
+                                   rtol=0, atol=1e-14)
+        a, b = fast.vectors_to_pixels(v), general.vectors_to_pixels(v)
+        np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+        np.testing.assert_allclose(a[~np.isnan(a)], b[~np.isnan(b)], rtol=1e-12, atol=1e-9)

@@ -286,3 +286,41 @@ def test_prior_validation():
         starid.Prior(np.array([1.0, 0, 0, 0]), 0.0)
     with pytest.raises(ValueError, match="quaternion"):
         starid.Prior(np.array([np.nan, 0, 0, 0]), 1.0)
+
+
+def test_tracking_results_do_not_depend_on_the_cached_catalogue_cone(wide):
+    """The solver keeps the last catalogue cone between frames; a warm solver (its cone
+    from a neighbouring frame, or from elsewhere in the sky) answers exactly as a fresh
+    one, frame after frame of a slow sweep across the sky."""
+    cat, cam, warm = wide
+    rng = np.random.default_rng(12)
+    q = rot.q_cam_icrs_from_radec_roll(1.0, 0.6, 0.2)
+    step = rot.exp_map([0.0, np.radians(0.7), np.radians(3.0)])  # boresight drifts 0.7°
+    tracked = 0
+    for k in range(25):
+        q = rot.multiply(step, q)
+        _, xy = stars_in_view(cat, cam, q)
+        xy = xy + rng.normal(0, 0.3, xy.shape)
+        prior = starid.Prior(perturbed(q, 0.02, rng), 0.02)
+        if k % 7 == 3:  # someone solved another part of the sky in between
+            warm.solve(xy, prior=starid.Prior(rot.q_cam_icrs_from_radec_roll(4, -1, 0), 0.02))
+        a = warm.solve(xy, prior=prior)
+        b = starid.Solver(cat, cam).solve(xy, prior=prior)
+        assert (a.ok, a.mode, a.matches, a.reason) == (b.ok, b.mode, b.matches, b.reason)
+        if a.ok:
+            np.testing.assert_array_equal(a.q_cam_icrs, b.q_cam_icrs)
+            tracked += a.mode == "tracking"
+    assert tracked >= 20
+
+
+def test_duplicate_check_tells_shared_coordinates_from_duplicates(wide):
+    _, _, s = wide
+    # same x, different y (a vertical column of stars) is fine ...
+    column = np.array([[100.0, 50.0], [100.0, 150.0], [100.0, 250.0], [300.0, 200.0]])
+    assert "duplicate" not in s.solve(column).reason
+    # ... a true duplicate hidden among them is not
+    dup = np.vstack([column, [[100.0, 150.0 + 1e-8]]])
+    assert "duplicate centroids at rows 1 and 4" in s.solve(dup).reason
+    # huge but finite coordinates: their sum overflows, yet nothing is non-finite
+    far = np.array([[1e308, 1e308], [1e308, -1e308], [5.0, 5.0]])
+    assert "far outside the frame" in s.solve(far).reason
