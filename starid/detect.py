@@ -387,6 +387,11 @@ def _quantiles(
         return lo, med
     k_med = (n - 1) // 2
     k_lo = min(round(_P_MINUS_1SIGMA * (n - 1)), max(k_med - 1, 0))
+    if samples.dtype.kind in "ui" and samples.size:
+        first, last = int(samples.min()), int(samples.max())
+        if last - first < _HIST_MAX_LEVELS:
+            return _quantiles_by_histogram(samples, first, last - first + 1, k_lo, k_med,
+                                           step, interpolate_lo)
     # A full row sort: numpy's SIMD sorts beat even one np.partition here (and a multi-kth
     # partition by ~10×).
     samples.sort(axis=1)
@@ -397,6 +402,44 @@ def _quantiles(
         if interpolate_lo:
             lo = _interpolated_quantile(samples, lo, k_lo, step)
     return lo, med
+
+
+# Integer data spanning fewer grey levels than this take the histogram path (8-bit video,
+# residuals of it): a counting pass instead of a sort, ~8× faster for 240 blocks × 256.
+_HIST_MAX_LEVELS = 1024
+
+
+def _quantiles_by_histogram(
+    samples: np.ndarray, first: int, levels: int, k_lo: int, k_med: int, step: float,
+    interpolate_lo: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_quantiles` for integer data on ``levels`` grey levels from ``first``, from one
+    row-wise histogram; gives exactly what the sort gives, including the every-other-sample
+    count of :func:`_interpolated_quantile` (the even ranks of a sorted row below a value v
+    number ⌈below/2⌉)."""
+    rows, n = samples.shape
+    idx = samples.astype(np.int32)
+    idx += (np.arange(rows, dtype=np.int32) * levels - first)[:, None]
+    hist = np.bincount(idx.ravel(), minlength=rows * levels).reshape(rows, levels)
+    cum = hist.cumsum(axis=1)  # samples ≤ level
+    r = np.arange(rows)
+
+    def order_stat(k: int, interpolate: bool) -> np.ndarray:
+        b = np.count_nonzero(cum <= k, axis=1)  # the level holding the k-th smallest
+        value = (b + first).astype(np.float64)
+        if not (step and interpolate):
+            return value
+        equal = hist[r, b]
+        below = cum[r, b] - equal
+        m = n
+        if n >= 128:  # as _interpolated_quantile: every other sorted sample
+            m = (n + 1) // 2
+            below_h = (below + 1) // 2
+            equal, below = (below + equal + 1) // 2 - below_h, below_h
+        rank = (k + 0.5) / n * m
+        return value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
+
+    return order_stat(k_lo, interpolate_lo), order_stat(k_med, True)
 
 
 def _interpolated_quantile(
