@@ -37,7 +37,7 @@ from typing import Any
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Attachment, Channel, Chunk, Metadata, Schema
+from mcap.records import Attachment, Channel, Chunk, Metadata, Schema, Statistics
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import breakup_chunk
 
@@ -47,6 +47,7 @@ from logs.message import Message
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEADER = struct.Struct("<BQ")
+_CHUNK_TIMES = struct.Struct("<QQ")  # a chunk record starts with its message time range
 
 
 class McapReadWarning(UserWarning):
@@ -166,6 +167,56 @@ class McapLogReader:
                 schema.data if schema else b"")
 
     def _scan(self) -> None:
+        if self._scan_headers():
+            return
+        # not a complete file (or not one we can index by its headers): read every chunk
+        self.channels, self.metadata, self.attachments = {}, {}, {}
+        self._schemas, self._chunks, self._loose = {}, [], []
+        self.message_count, self._last_good_ns, self.problem = 0, None, None
+        self._scan_chunks()
+
+    def _scan_headers(self) -> bool:
+        """Fast pass for complete files: walk the top-level records reading only each
+        chunk's header (its time range) and seeking over its data; schemas and channels
+        come from the summary section, the count from its statistics. ``False`` when the
+        file is cut short, has no statistics, or anything looks odd — then the full scan
+        decides. Chunk contents (decompression, CRC) are checked as they are read.
+
+        Why: the full scan decompresses every chunk, and :meth:`messages` does it again; a
+        replay of 512×480 video spent ~1 ms per frame here."""
+        size = os.path.getsize(self.path)
+        count = None
+        with open(self.path, "rb") as f:
+            if f.read(len(MAGIC)) != MAGIC:
+                return False
+            while True:
+                offset = f.tell()
+                head = f.read(_RECORD_HEADER.size)
+                if len(head) < _RECORD_HEADER.size:
+                    return False
+                opcode, length = _RECORD_HEADER.unpack(head)
+                if length > size - offset - _RECORD_HEADER.size:
+                    return False
+                try:
+                    if opcode == Opcode.CHUNK:
+                        start_ns, end_ns = _CHUNK_TIMES.unpack(f.read(_CHUNK_TIMES.size))
+                        f.seek(offset + _RECORD_HEADER.size + length)
+                        if start_ns > end_ns:
+                            return False
+                        self._chunks.append(_ChunkRef(offset, length, start_ns, end_ns))
+                        self._seen(end_ns)
+                        continue
+                    body = f.read(length)
+                    if opcode == Opcode.STATISTICS:
+                        count = Statistics.read(ReadDataStream(io.BytesIO(body))).message_count
+                    elif self._parse(opcode, body, offset):
+                        return count is not None and f.read(len(MAGIC) + 1) == MAGIC
+                except Exception:
+                    return False
+                if count is not None:
+                    self.message_count = count
+
+    def _scan_chunks(self) -> None:
         size = os.path.getsize(self.path)
         with open(self.path, "rb") as f:
             if f.read(len(MAGIC)) != MAGIC:
@@ -281,13 +332,31 @@ class McapLogReader:
                           f"{record.log_time / 1e9:.6f} s ({exc}); skipped", McapReadWarning,
                           stacklevel=3)
             return None
-        return Message(record.log_time / 1e9, topic, payload)
+        raw = record.data if decoder is json.loads else None
+        return Message(record.log_time / 1e9, topic, payload, raw)
 
     # ------------------------------------------------------------------ pass 2: merge
     def _chunk_messages(self, f: io.BufferedReader, ref: _ChunkRef) -> list[McapMessage]:
         f.seek(ref.offset + _RECORD_HEADER.size)
         chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(ref.length))))
-        return [r for r in breakup_chunk(chunk) if isinstance(r, McapMessage)]
+        out = []
+        for r in breakup_chunk(chunk, validate_crc=True):
+            if isinstance(r, McapMessage):
+                out.append(r)
+            elif r.__class__ in (Schema, Channel) and r.id not in (
+                    self._schemas if isinstance(r, Schema) else self.channels):
+                self._take(r)
+        return out
+
+    def _broken_chunk(self, ref: _ChunkRef, exc: Exception) -> None:
+        """A chunk of a file indexed by its headers turned out corrupt while reading: it
+        and everything after it are dropped, as the full scan would have done."""
+        before = [c for c in self._chunks if c.offset < ref.offset]
+        self._last_good_ns = max((c.end_ns for c in before), default=None)
+        self._chunks = before
+        self._fail(ref.offset, os.path.getsize(self.path),
+                   f"corrupt chunk: {type(exc).__name__}: {exc}")
+        warnings.warn(str(self.problem), McapReadWarning, stacklevel=4)
 
     def raw_records(self) -> Iterator[tuple[ChannelInfo, McapMessage]]:
         """Undecoded ``(channel, mcap message)`` pairs in log-time order (all topics)."""
@@ -300,9 +369,19 @@ class McapLogReader:
             while heap or nxt < len(pending):
                 while nxt < len(pending) and (not heap or pending[nxt].start_ns <= heap[0][0]):
                     ref = pending[nxt]
-                    for i, m in enumerate(self._chunk_messages(f, ref)):
+                    try:
+                        msgs = self._chunk_messages(f, ref)
+                    except Exception as exc:  # only a header-indexed file gets here
+                        self._broken_chunk(ref, exc)
+                        heap = [h for h in heap if h[1] < ref.offset]
+                        heapq.heapify(heap)
+                        pending = []
+                        break
+                    for i, m in enumerate(msgs):
                         heapq.heappush(heap, (m.log_time, ref.offset, i, m))
                     nxt += 1
+                if not heap:
+                    break
                 _, _, _, record = heapq.heappop(heap)
                 channel = self.channels.get(record.channel_id)
                 if channel is not None:

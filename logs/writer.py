@@ -261,6 +261,10 @@ class LogWriter:
         :data:`logs.schemas.JSON_SCHEMAS` carry their schema; others a generic object one."""
         self._add(self._channel(topic, "json"), self._ns(t_s), dumps(payload).encode())
 
+    def write_json_bytes(self, topic: str, t_s: float, data: bytes) -> None:
+        """One JSON message already encoded (``Message.raw`` of an input being copied)."""
+        self._add(self._channel(topic, "json"), self._ns(t_s), bytes(data))
+
     # ------------------------------------------------------------------ file-level records
     def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
         """MCAP metadata record (e.g. ``"config"``, the run configuration). Non-string values
