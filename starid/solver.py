@@ -305,6 +305,21 @@ class Solver:
         return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                         patterns_tried=tried)
 
+    def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Pixel positions and catalogue ids of the catalogue stars inside the frame at an
+        attitude (``q_cam_icrs``). Cheap frame after frame: the solver keeps the last
+        catalogue cone.
+
+        >>> import starid
+        >>> from starid import rotations as rot
+        >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
+        ...                   starid.Camera.pinhole(1024, 768, 15.0))
+        >>> xy, ids = s.stars_in_view(rot.q_cam_icrs_from_radec_roll(0.2, 1.0, 0.0))
+        >>> len(xy) == len(ids) > 0
+        True
+        """
+        return self._project(rot.normalize(np.asarray(q_cam_icrs, np.float64)), self.camera)
+
     # --- internals ----------------------------------------------------------------------
 
     def _parse(self, detections, min_count: int = 3) -> tuple[NDArray[np.float64], str]:
