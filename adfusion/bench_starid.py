@@ -27,7 +27,12 @@ false stars placed uniformly in the frame with magnitudes drawn from the catalog
 magnitude distribution; the list ordered by magnitude plus ``mag_noise`` (Gaussian), brightest
 first. The attitude of frame *i* depends only on ``(seed, i)``, so every condition sees the
 same sky; the perturbations depend on ``(seed, i, condition)``. Any frame can be rebuilt with
-:func:`make_frame` from the seed, the index and the condition.
+:func:`make_frame` from the seed, the index and the condition. A :class:`Condition` may also
+set the FOV, the magnitude noise, or a body rate — then the frame is *rendered* with motion
+blur and its centroids come from :func:`starid.detect` (:func:`render_frame_for`); the
+robustness sweeps (:mod:`adfusion.bench_sweep`) are conditions of this model, scored by
+:func:`score` per trial and :func:`aggregate` per condition. ``ours_tracking`` (ours with a
+filter-like prior, :func:`tracking_prior`) can join the solvers.
 
 Solver set-up (one configuration per condition, as a user would configure a camera):
 
@@ -82,7 +87,7 @@ import textwrap
 import time
 import zlib
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -91,11 +96,15 @@ from numpy.typing import NDArray
 
 __all__ = [
     "CONDITIONS",
+    "RENDER_SENSOR",
     "SOLVER_NAMES",
     "BenchConfig",
     "Condition",
     "Frame",
+    "Trial",
     "add_arguments",
+    "aggregate",
+    "camera_for",
     "clopper_pearson_upper",
     "config_from_args",
     "format_table",
@@ -103,8 +112,12 @@ __all__ = [
     "main",
     "make_frame",
     "peer_match_max_error",
+    "render_frame_for",
     "run",
     "run_benchmark",
+    "score",
+    "solver_for",
+    "tracking_prior",
 ]
 
 SOLVER_NAMES = ("ours", "tetra3rs", "cedar")
@@ -116,13 +129,18 @@ _CHECK_LIMIT_ARCSEC = 60.0  # a convention slip (½ px, axis swap, roll sign) is
 
 @dataclass(frozen=True)
 class Condition:
-    """One benchmark condition.
+    """One benchmark condition (a sweep point of ``adfusion bench sweep`` is one, too).
 
-    ``sigma_px`` and ``mag_limit`` of ``None`` mean "the run's base value" (``--sigma``,
-    ``--mag-limit``); :meth:`resolved` fills them in.
+    ``sigma_px``, ``mag_limit``, ``mag_noise`` and ``fov_deg`` of ``None`` mean "the run's
+    base value" (``--sigma``, ``--mag-limit``, ``--mag-noise``, ``--fov``); :meth:`resolved`
+    fills them in. ``rate_deg_s`` set means a *rendered* frame: the stars are drawn onto an
+    image streaked by a body rate of that size (random axis) over ``exposure_s``, and the
+    centroids come from :func:`starid.detect` (:func:`make_frame`).
 
     >>> Condition("x", n_false=3).resolved(0.1, 6.0).sigma_px
     0.1
+    >>> Condition("x", fov_deg=20.0).resolved(0.1, 6.0, mag_noise=0.1, fov_deg=15.0).fov_deg
+    20.0
     """
 
     name: str
@@ -132,14 +150,32 @@ class Condition:
     sigma_px: float | None = None
     mag_limit: float | None = None
     coverage: bool = False  # report frames with ≥ 3 / ≥ 4 catalogue stars in the table
+    mag_noise: float | None = None
+    fov_deg: float | None = None
+    rate_deg_s: float | None = None  # None: synthetic centroids; a value: rendered + detect
+    exposure_s: float = 0.1
 
-    def resolved(self, sigma_px: float, mag_limit: float) -> Condition:
-        """A copy with the run's base centroid σ and visible limit where unset."""
-        return Condition(
-            self.name, self.description, self.n_false, self.drop_frac,
-            sigma_px if self.sigma_px is None else self.sigma_px,
-            mag_limit if self.mag_limit is None else self.mag_limit, self.coverage,
-        )  # fmt: skip
+    def resolved(self, sigma_px: float, mag_limit: float, *, mag_noise: float | None = None,
+                 fov_deg: float | None = None) -> Condition:
+        """A copy with the run's base values where unset."""
+        return replace(
+            self,
+            sigma_px=sigma_px if self.sigma_px is None else self.sigma_px,
+            mag_limit=mag_limit if self.mag_limit is None else self.mag_limit,
+            mag_noise=mag_noise if self.mag_noise is None else self.mag_noise,
+            fov_deg=fov_deg if self.fov_deg is None else self.fov_deg,
+        )
+
+    def params(self) -> dict[str, Any]:
+        """The frame model's parameters (recorded in the JSON)."""
+        out = {"n_false": self.n_false, "drop_frac": self.drop_frac,
+               "sigma_px": self.sigma_px, "mag_limit": self.mag_limit}
+        for k in ("mag_noise", "fov_deg", "rate_deg_s"):
+            if getattr(self, k) is not None:
+                out[k] = getattr(self, k)
+        if self.rate_deg_s is not None:
+            out["exposure_s"] = self.exposure_s
+        return out
 
 
 #: The default conditions, by name (``--conditions`` picks a subset, in this order).
@@ -173,6 +209,11 @@ class Frame:
     xy: NDArray[np.float64]
     cat_ids: NDArray[np.int64]
     n_in_view: int  # catalogue stars in view before drops
+    seed: int = 0
+    # rendered frames: the camera's rate (rad/s, camera axes) over the exposure, during which
+    # the true attitude is exp(−ω s) ⊗ q_cam_icrs, s ∈ [−T/2, T/2]
+    omega_cam_rad_s: NDArray[np.float64] | None = None
+    exposure_s: float = 0.0
 
     @property
     def n_true(self) -> int:
@@ -201,7 +242,9 @@ def make_frame(catalog, camera, cond: Condition, seed: int, index: int,
                mag_noise: float = 0.1) -> Frame:
     """Build frame ``index`` of condition ``cond`` (resolved: ``sigma_px``, ``mag_limit`` set).
 
-    ``catalog`` must hold the stars visible under ``cond`` (``mag < cond.mag_limit``).
+    ``catalog`` must hold the stars visible under ``cond`` (``mag < cond.mag_limit``) and
+    ``camera`` be the condition's (:func:`camera_for`). ``cond.mag_noise``, when set, replaces
+    ``mag_noise``. A condition with ``rate_deg_s`` is rendered (:func:`render_frame_for`).
 
     >>> import starid
     >>> from starid.catalog import Catalog
@@ -213,6 +256,10 @@ def make_frame(catalog, camera, cond: Condition, seed: int, index: int,
     """
     from starid import rotations as rot
 
+    if cond.rate_deg_s is not None:
+        return render_frame_for(catalog, camera, cond, seed, index)
+    if cond.mag_noise is not None:
+        mag_noise = cond.mag_noise
     q = random_attitude(seed, index)
     rng = np.random.default_rng([seed, index, _cond_key(cond.name)])
     v = rot.rotate(q, catalog.vectors)
@@ -238,7 +285,67 @@ def make_frame(catalog, camera, cond: Condition, seed: int, index: int,
         ids = np.concatenate([ids, np.full(cond.n_false, -1, np.int64)])
     observed = mags + rng.normal(0.0, 1.0, len(mags)) * mag_noise
     order = np.argsort(observed, kind="stable")
-    return Frame(cond.name, index, q, xy[order], ids[order], n_in_view)
+    return Frame(cond.name, index, q, xy[order], ids[order], n_in_view, seed)
+
+
+#: The detector model of rendered frames: the renderer's default small star tracker (a
+#: V = 6 star gives ~4000 e⁻ per exposure over 100 e⁻ of sky per pixel, 10 e⁻ read noise).
+RENDER_SENSOR: dict[str, Any] = {"psf_sigma_px": 1.0, "noise": "gaussian"}
+
+
+def render_frame_for(catalog, camera, cond: Condition, seed: int, index: int) -> Frame:
+    """A rendered frame: ``sensors.render.render_frame`` + :func:`starid.detect`.
+
+    The attitude is :func:`random_attitude` ``(seed, index)`` at mid-exposure; the body turns
+    at ``cond.rate_deg_s`` about a random axis (camera frame) during ``cond.exposure_s``, so
+    every star is a streak of rate × exposure. ``catalog``'s stars are rendered (the visible
+    set, as for synthetic frames) and the detections — all of them, brightest first — are
+    the centroid list; ``detect`` runs with ``max_elongation=None`` because streaks are the
+    point of the condition (its default rejects blobs longer than 3:1 as satellite trails).
+    A detection within 3 px of a star's mid-exposure position is that star (``cat_ids``).
+
+    >>> import starid
+    >>> from starid.catalog import Catalog
+    >>> cat = Catalog.hipparcos(mag_limit=5.0, epoch=2025.0)
+    >>> cam = starid.Camera.pinhole(256, 192, fov_x_deg=15.0)
+    >>> f = render_frame_for(cat, cam, Condition("r", rate_deg_s=1.0), seed=0, index=3)
+    >>> f.n_true >= 1, f.xy.shape[1]
+    (True, 2)
+    """
+    from scipy.spatial import cKDTree
+
+    import starid
+    from sensors.render import SensorModel, render_frame
+
+    if cond.n_false or cond.drop_frac:  # (sigma_px only tells the solvers what to expect)
+        raise ValueError(f"{cond.name}: a rendered condition takes no synthetic perturbations")
+    q = random_attitude(seed, index)
+    rng = np.random.default_rng([seed, index, _cond_key(cond.name)])
+    axis = rng.normal(size=3)
+    omega = np.radians(float(cond.rate_deg_s or 0.0)) * axis / np.linalg.norm(axis)
+    fr = render_frame(camera, q, catalog.vectors, catalog.mag, SensorModel(**RENDER_SENSOR),
+                      seed=int(rng.integers(2**31)), omega_cam_rad_s=omega,
+                      exposure_s=cond.exposure_s)
+    det = starid.detect(fr.image, camera, max_elongation=None)
+    xy = np.asarray(det.xy, dtype=np.float64).reshape(-1, 2)
+    ids = np.full(len(xy), -1, np.int64)
+    if len(xy) and len(fr.star_xy):
+        d, j = cKDTree(fr.star_xy).query(xy, distance_upper_bound=3.0)
+        hit = np.isfinite(d)
+        ids[hit] = np.asarray(catalog.ids, dtype=np.int64)[fr.star_index[j[hit]]]
+    return Frame(cond.name, index, q, xy, ids, len(fr.star_xy), seed, omega, cond.exposure_s)
+
+
+def camera_for(cond: Condition, width: int, height: int, fov_deg: float = 15.0):
+    """The pinhole camera of a condition (its ``fov_deg``, else ``fov_deg``).
+
+    >>> round(camera_for(Condition("x", fov_deg=20.0), 1024, 768).fov_x_deg, 9)
+    20.0
+    """
+    import starid
+
+    fov = fov_deg if cond.fov_deg is None else cond.fov_deg
+    return starid.Camera.pinhole(width, height, fov_x_deg=float(fov))
 
 
 # --- statistics --------------------------------------------------------------------------
@@ -287,6 +394,8 @@ class _Outcome:
     time_s: float
     status: str = ""
     own_time_s: float | None = None  # the solver's self-reported time, if any
+    matches: list[tuple[int, int]] | None = None  # (detection, catalogue id), ours only
+    covariance: NDArray[np.float64] | None = None  # 3×3 rad², camera frame, ours only
 
 
 def frame_error_px(q_est: NDArray[np.float64], q_true: NDArray[np.float64], camera) -> float:
@@ -312,23 +421,141 @@ def frame_error_px(q_est: NDArray[np.float64], q_true: NDArray[np.float64], came
     return float(np.max(d)) if np.all(np.isfinite(d)) else float("inf")
 
 
+@dataclass(frozen=True)
+class Trial:
+    """One solver on one frame, scored: the unit a campaign task returns (JSON-able row).
+
+    ``verdict`` is ``"correct"``, ``"wrong"`` (a wrong attitude accepted) or ``"failed"``
+    (nothing accepted); errors are ``None`` unless something was accepted (``inf`` px when a
+    frame corner falls behind the camera).
+    """
+
+    index: int
+    verdict: str
+    error_px: float | None
+    error_deg: float | None
+    time_s: float
+    status: str
+    own_time_s: float | None
+    n_true: int
+    n_centroids: int
+    error_path_px: float | None = None  # rendered frames: closest instant of the exposure
+    # wrong attitudes (ours): share of the matches that are right, how many, the largest 1σ
+    # the solver reported and the error in units of that covariance (√ of δθᵀ C⁻¹ δθ) — a
+    # misidentification, or the right stars badly fitted, and did the solver say so?
+    stars_right: float | None = None
+    n_matches: int | None = None
+    sigma_max_deg: float | None = None
+    error_sigmas: float | None = None
+
+    def row(self) -> list[Any]:
+        """As a list (JSON lines; ``Trial(*row)`` rebuilds it)."""
+        return [self.index, self.verdict, self.error_px, self.error_deg, self.time_s,
+                self.status, self.own_time_s, self.n_true, self.n_centroids,
+                self.error_path_px, self.stars_right, self.n_matches, self.sigma_max_deg,
+                self.error_sigmas]
+
+
+def score(frame: Frame, outcome: _Outcome, camera, tol_px: float, catalog=None) -> Trial:
+    """Judge one outcome against the frame's truth: correct when the frame's corners and
+    centre move by less than ``tol_px`` (:func:`frame_error_px`).
+
+    A streaked (rendered, moving) frame has no single true attitude: the camera turned by
+    rate × exposure while it was taken, and a streak broken into fragments yields centroids
+    of *other instants* than mid-exposure — all stars of a frame alike, so the fit is tight
+    and the identification right, yet the attitude is that of another instant (up to
+    rate × exposure / 2 off mid-exposure). Such an outcome is correct when it is within
+    ``tol_px`` of the true attitude at some instant of the exposure (41 instants tried);
+    ``error_path_px`` records that distance, ``error_px`` stays the mid-exposure one, and
+    :func:`aggregate` counts and lists these frames (``off_mid_exposure``).
+
+    For a wrong attitude with its matches (ours), ``stars_right`` tells a misidentification
+    from a bad fit of the right stars: the share of matched detections that are the claimed
+    star — by the frame's truth ids, or, on a streaked frame (``catalog`` needed), lying
+    within 2 px of that star's path during the exposure.
+
+    >>> import starid
+    >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
+    >>> f = Frame("x", 0, random_attitude(0, 0), np.zeros((5, 2)), np.arange(5), 5)
+    >>> score(f, _Outcome(True, f.q_cam_icrs, 0.001), cam, 5.0).verdict
+    'correct'
+    """
+    from starid import rotations as rot
+
+    err_px = err_deg = path_px = None
+    verdict = "failed"
+    if outcome.ok and outcome.q is not None:
+        err_deg = float(np.degrees(rot.angle_between(outcome.q, frame.q_cam_icrs)))
+        err_px = frame_error_px(outcome.q, frame.q_cam_icrs, camera)
+        verdict = "correct" if err_px < tol_px else "wrong"
+        if verdict == "wrong" and frame.omega_cam_rad_s is not None and frame.exposure_s > 0:
+            s = np.linspace(-0.5, 0.5, 41) * frame.exposure_s
+            q_path = rot.multiply(rot.exp_map(-np.outer(s, frame.omega_cam_rad_s)),
+                                  frame.q_cam_icrs)
+            path_px = min(frame_error_px(outcome.q, q, camera) for q in q_path)
+            verdict = "correct" if path_px < tol_px else "wrong"
+    right = n_match = sigma = n_sigma = None
+    if verdict == "wrong" and outcome.matches:
+        right = _stars_right(frame, outcome.matches, camera, catalog)
+        n_match = len(outcome.matches)
+    if verdict == "wrong" and outcome.covariance is not None and outcome.q is not None:
+        c = np.asarray(outcome.covariance, dtype=np.float64)
+        sigma = float(np.degrees(np.sqrt(np.max(np.diag(c)))))
+        d = rot.log_map(rot.multiply(frame.q_cam_icrs, rot.inverse(outcome.q)))
+        with contextlib.suppress(np.linalg.LinAlgError):
+            n_sigma = float(np.sqrt(d @ np.linalg.solve(c, d)))
+    return Trial(frame.index, verdict, err_px, err_deg, float(outcome.time_s),
+                 outcome.status, outcome.own_time_s, frame.n_true, len(frame.xy), path_px,
+                 right, n_match, sigma, n_sigma)
+
+
+def _stars_right(frame: Frame, matches: Sequence[tuple[int, int]], camera,
+                 catalog) -> float | None:
+    """Share of (detection, catalogue id) matches that are right (see :func:`score`)."""
+    from starid import rotations as rot
+
+    if frame.omega_cam_rad_s is None:
+        return float(np.mean([frame.cat_ids[d] == c for d, c in matches]))
+    if catalog is None:
+        return None
+    row = {int(i): k for k, i in enumerate(np.asarray(catalog.ids))}
+    v = np.asarray(catalog.vectors)[[row[int(c)] for _, c in matches]]
+    s = np.linspace(-0.5, 0.5, 41) * frame.exposure_s
+    q_path = rot.multiply(rot.exp_map(-np.outer(s, frame.omega_cam_rad_s)), frame.q_cam_icrs)
+    xy = frame.xy[[d for d, _ in matches]]
+    best = np.full(len(matches), np.inf)
+    for q in q_path:
+        d = np.hypot(*(camera.vectors_to_pixels(rot.rotate(q, v)) - xy).T)
+        best = np.minimum(best, d)
+    return float(np.mean(best <= 2.0))
+
+
 def summarize(frames: Sequence[Frame], outcomes: Sequence[_Outcome], camera, tol_px: float,
               list_max: int = 50, per_frame: bool = False) -> dict[str, Any]:
     """Availability, error rate (+ 95 % bound), times and the frames worth a look."""
-    from starid import rotations as rot
+    return aggregate([score(f, o, camera, tol_px)
+                      for f, o in zip(frames, outcomes, strict=True)], list_max, per_frame)
 
-    n = len(frames)
-    err_deg = np.full(n, np.nan)
-    err_px = np.full(n, np.nan)
-    for i, (f, o) in enumerate(zip(frames, outcomes, strict=True)):
-        if o.ok and o.q is not None:
-            err_deg[i] = float(np.degrees(rot.angle_between(o.q, f.q_cam_icrs)))
-            err_px[i] = frame_error_px(o.q, f.q_cam_icrs, camera)
-    accepted = ~np.isnan(err_px)
-    correct = accepted & (err_px < tol_px)
-    wrong = accepted & ~correct
-    n_true = np.array([f.n_true for f in frames])
-    times = [o.time_s for o in outcomes]
+
+def aggregate(trials: Sequence[Trial], list_max: int = 50,
+              per_frame: bool = False) -> dict[str, Any]:
+    """The figures of one solver over scored trials (order matters only for the lists).
+
+    >>> t = [Trial(i, "correct", 0.5, 0.001, 0.002, "", None, 8, 10) for i in range(3)]
+    >>> a = aggregate(t + [Trial(3, "failed", None, None, 0.004, "ambiguous: 2", None, 3, 4)])
+    >>> a["availability_pct"], a["n_failed"], a["failure_reasons"]
+    (75.0, 1, {'ambiguous': 1})
+    """
+    n = len(trials)
+    nan = float("nan")
+    err_px = np.array([nan if t.error_px is None else t.error_px for t in trials], float)
+    err_deg = np.array([nan if t.error_deg is None else t.error_deg for t in trials], float)
+    verdict = np.array([t.verdict for t in trials], dtype=object)
+    accepted = verdict != "failed"
+    correct = verdict == "correct"
+    wrong = verdict == "wrong"
+    n_true = np.array([t.n_true for t in trials], dtype=np.int64)
+    times = [t.time_s for t in trials]
     out: dict[str, Any] = {
         "n_frames": n,
         "n_correct": int(correct.sum()),
@@ -349,35 +576,50 @@ def summarize(frames: Sequence[Frame], outcomes: Sequence[_Outcome], camera, tol
         sel = n_true >= k
         out[f"frames_ge{k}_stars"] = int(sel.sum())
         out[f"availability_ge{k}_pct"] = _pct(int((correct & sel).sum()), int(sel.sum()))
-    own = [o.own_time_s for o in outcomes if o.own_time_s is not None]
+    own = [t.own_time_s for t in trials if t.own_time_s is not None]
     if own:
         out["own_reported_time_ms"] = _time_stats(own)
     statuses: dict[str, int] = {}
-    for o in outcomes:
-        if not o.ok:
-            key = o.status.split(":")[0] or "not ok"
+    for t in trials:
+        if t.verdict == "failed":
+            key = t.status.split(":")[0] or "not ok"
             statuses[key] = statuses.get(key, 0) + 1
     out["failure_reasons"] = dict(sorted(statuses.items(), key=lambda kv: -kv[1]))
+    off_mid = [t for t in trials if t.verdict == "correct" and t.error_path_px is not None]
+    if off_mid:  # streaked frames: right stars, the attitude of another instant (see score)
+        out["n_off_mid_exposure"] = len(off_mid)
+        out["off_mid_exposure_frames"] = [
+            {"index": t.index, "error_px": round(float(t.error_px or 0.0), 2),
+             "error_deg": round(float(t.error_deg or 0.0), 4),
+             "error_path_px": round(float(t.error_path_px or 0.0), 2)} for t in off_mid]
     out["wrong_frames"] = [
-        {"index": frames[i].index, "error_deg": round(float(err_deg[i]), 4),
+        {"index": trials[i].index, "error_deg": round(float(err_deg[i]), 4),
          "error_px": round(float(err_px[i]), 2) if np.isfinite(err_px[i]) else "inf",
-         "n_centroids": len(frames[i].xy), "n_true": int(n_true[i])}
+         "n_centroids": trials[i].n_centroids, "n_true": int(n_true[i]),
+         **({} if trials[i].error_path_px is None else
+            {"error_path_px": round(trials[i].error_path_px, 2)}),
+         **({} if trials[i].stars_right is None else
+            {"stars_right": round(trials[i].stars_right, 3), "n_matches": trials[i].n_matches}),
+         **({} if trials[i].sigma_max_deg is None else
+            {"sigma_max_deg": round(trials[i].sigma_max_deg, 4),
+             "error_sigmas": None if trials[i].error_sigmas is None else
+             round(trials[i].error_sigmas, 2)})}
         for i in np.flatnonzero(wrong)
     ]
     out["failed_frames"] = [
-        {"index": frames[i].index, "status": outcomes[i].status[:120],
-         "n_centroids": len(frames[i].xy), "n_true": int(n_true[i])}
+        {"index": trials[i].index, "status": trials[i].status[:120],
+         "n_centroids": trials[i].n_centroids, "n_true": int(n_true[i])}
         for i in np.flatnonzero(~accepted)[:list_max]
     ]
     slow = np.argsort(times)[::-1][:5]
-    out["slowest_frames"] = [{"index": frames[i].index, "time_ms": round(times[i] * 1e3, 3),
+    out["slowest_frames"] = [{"index": trials[i].index, "time_ms": round(times[i] * 1e3, 3),
                               "ok": bool(correct[i])} for i in slow]
     if per_frame:
         out["per_frame"] = {
             "accepted": accepted.tolist(), "correct": correct.tolist(),
             "error_px": [round(float(e), 3) if np.isfinite(e) else None for e in err_px],
             "time_ms": [round(t * 1e3, 4) for t in times],
-            "status": [o.status[:80] for o in outcomes],
+            "status": [t.status[:80] for t in trials],
         }  # fmt: skip
     return out
 
@@ -433,8 +675,8 @@ def peer_match_max_error(sigma_px: float, width: int) -> float | None:
 class _Adapter:
     name = ""
 
-    def setup(self, cond: Condition) -> None:
-        """Prepare for a condition (catalogue, database, parameters)."""
+    def setup(self, cond: Condition, camera) -> None:
+        """Prepare for a (resolved) condition seen by ``camera``: catalogue, database, …"""
 
     def solve(self, frame: Frame) -> _Outcome:
         raise NotImplementedError
@@ -450,51 +692,111 @@ class _Adapter:
         pass
 
 
+_SOLVERS: dict[tuple[Any, ...], Any] = {}
+
+
+def solver_for(mag_limit: float, sigma_px: float, camera, epoch: float = 2025.0):
+    """Our :class:`starid.solver.Solver` for a visible limit, centroid σ and camera
+    (memoised per process: the tracking and lost-in-space runs share one index).
+
+    ``centroid_sigma_px`` is ``max(0.5, σ)``, as a user would configure a camera.
+    """
+    from starid.solver import Solver
+
+    sigma = max(0.5, float(sigma_px))
+    key = (float(mag_limit), sigma, camera.width, camera.height, round(camera.fov_x_deg, 9),
+           float(epoch))
+    if key not in _SOLVERS:
+        _SOLVERS[key] = Solver(_catalog(float(mag_limit), epoch), camera,
+                               centroid_sigma_px=sigma)
+    return _SOLVERS[key]
+
+
 class _Ours(_Adapter):
     name = "ours"
 
-    def __init__(self, cfg: BenchConfig, camera) -> None:
-        self.cfg, self.camera = cfg, camera
-        self._solvers: dict[tuple[float, float], Any] = {}
+    def __init__(self, cfg: BenchConfig, camera=None) -> None:
+        self.cfg = cfg
         self._builds: dict[str, dict[str, Any]] = {}
         self.solver = None
+        self._params: dict[str, Any] = {}
 
-    def setup(self, cond: Condition) -> None:
+    def setup(self, cond: Condition, camera) -> None:
         from starid.index import PatternIndex
-        from starid.solver import Solver
 
-        sigma = max(0.5, float(cond.sigma_px or 0.0))
-        limit = self.cfg.mag_limit if cond.mag_limit is None else cond.mag_limit
-        key = (float(limit), sigma)
-        if key not in self._solvers:
-            cat = _catalog(key[0], self.cfg.epoch)
-            s = Solver(cat, self.camera, centroid_sigma_px=sigma)
-            self._solvers[key] = s
+        limit = float(cond.mag_limit if cond.mag_limit is not None else self.cfg.mag_limit)
+        s = solver_for(limit, float(cond.sigma_px or 0.0), camera, self.cfg.epoch)
+        base = getattr(self.cfg, "fov_deg", None)
+        fov = "" if base is not None and abs(camera.fov_x_deg - base) < 1e-6 else \
+            f", FOV {camera.fov_x_deg:.4g}°"
+        label = f"V<{limit:g}, sigma={s.centroid_sigma_px:g}px{fov}"
+        if label not in self._builds:
             t0 = time.perf_counter()  # the solver may have loaded its index from the cache
             PatternIndex.from_vectors(s.vectors, s.max_sep_rad, cache_tag=None)
             fresh = time.perf_counter() - t0
-            self._builds[f"V<{key[0]:g}, sigma={sigma:g}px"] = {
-                "catalog_stars": len(cat), "index_build_s": round(s.index_build_s, 4),
+            self._builds[label] = {
+                "catalog_stars": len(s.vectors), "index_build_s": round(s.index_build_s, 4),
                 "index_build_fresh_s": round(fresh, 4),
                 "index_nbytes": int(s.index.nbytes), "index_pairs": int(s.index.n_pairs)}
-        self.solver = self._solvers[key]
-        self._params = {"catalog": f"hipparcos V<{key[0]:g}", "centroid_sigma_px": sigma}
+        self.solver = s
+        self._params = {"catalog": f"hipparcos V<{limit:g}",
+                        "centroid_sigma_px": s.centroid_sigma_px}
 
     def params(self) -> dict[str, Any]:
         return self._params
 
+    def _prior(self, frame: Frame):
+        return None
+
     def solve(self, frame: Frame) -> _Outcome:
         assert self.solver is not None
+        prior = self._prior(frame)
         t0 = time.perf_counter()
         try:
-            sol = self.solver.solve(frame.xy)
+            sol = self.solver.solve(frame.xy, prior=prior)
         except Exception as e:  # a crash is a finding, not a reason to stop the run
             return _Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
         dt = time.perf_counter() - t0
-        return _Outcome(bool(sol.ok), sol.q_cam_icrs, dt, sol.reason, sol.time_s)
+        return _Outcome(bool(sol.ok), sol.q_cam_icrs, dt, sol.reason, sol.time_s, sol.matches,
+                        sol.covariance)
 
     def info(self) -> dict[str, Any]:
         return {"status": "ok", "indexes": self._builds}
+
+
+def tracking_prior(frame: Frame, sigma_deg: float):
+    """A filter-like prior for tracking: the true attitude tilted by a random error drawn
+    from N(0, σ²) per axis, with that σ (deterministic per seed, frame and condition).
+
+    >>> f = Frame("x", 4, random_attitude(0, 4), np.zeros((0, 2)), np.zeros(0, np.int64), 0)
+    >>> p = tracking_prior(f, 0.1)
+    >>> from starid import rotations as rot
+    >>> float(np.degrees(rot.angle_between(p.q_cam_icrs, f.q_cam_icrs))) < 0.6, p.sigma_deg
+    (True, 0.1)
+    """
+    from starid import rotations as rot
+    from starid.solver import Prior
+
+    rng = np.random.default_rng([frame.seed, frame.index, _cond_key(frame.condition), 1])
+    dtheta = np.radians(sigma_deg) * rng.normal(size=3)
+    return Prior(rot.multiply(rot.exp_map(dtheta), frame.q_cam_icrs), float(sigma_deg))
+
+
+class _OursTracking(_Ours):
+    """Ours with a prior (:func:`tracking_prior`): the tracking path, falling back to
+    lost-in-space when it fails, as in a filter loop."""
+
+    name = "ours_tracking"
+
+    def __init__(self, cfg, camera=None, sigma_deg: float = 0.1) -> None:
+        super().__init__(cfg, camera)
+        self.sigma_deg = float(sigma_deg)
+
+    def _prior(self, frame: Frame):
+        return tracking_prior(frame, self.sigma_deg)
+
+    def params(self) -> dict[str, Any]:
+        return {**self._params, "prior_sigma_deg": self.sigma_deg}
 
 
 class _Tetra3rs(_Adapter):
@@ -505,19 +807,19 @@ class _Tetra3rs(_Adapter):
 
         self.t3 = tetra3rs
         self.cfg, self.camera, self.cache = cfg, camera, cache
-        self._dbs: dict[float, Any] = {}
+        self._dbs: dict[tuple[float, float], Any] = {}
         self._db_info: dict[str, dict[str, Any]] = {}
         self.db = None
         self.kw: dict[str, Any] = {}
-        self.centre = np.array([(camera.width - 1) / 2, (camera.height - 1) / 2])
 
-    def _database(self, mag_limit: float):
-        if mag_limit in self._dbs:
-            return self._dbs[mag_limit]
+    def _database(self, mag_limit: float, fov_deg: float):
+        key = (mag_limit, round(fov_deg, 6))
+        if key in self._dbs:
+            return self._dbs[key]
         from starid.cache import cache_key
 
         params = {
-            "tetra3rs": self.t3.__version__, "max_fov_deg": round(self.camera.fov_x_deg, 6),
+            "tetra3rs": self.t3.__version__, "max_fov_deg": key[1],
             "star_max_magnitude": mag_limit + 0.5, "epoch": self.cfg.epoch,
         }  # fmt: skip
         path = self.cache / f"tetra3rs-db-{cache_key('tetra3rs-db', params)}.bin"
@@ -533,17 +835,22 @@ class _Tetra3rs(_Adapter):
             os.replace(tmp, path)
         else:
             db = self.t3.SolverDatabase.load_from_file(str(path))
-        self._db_info[f"G<{params['star_max_magnitude']:g}"] = {
+        label = f"G<{params['star_max_magnitude']:g}"
+        if key[1] != round(getattr(self.cfg, "fov_deg", key[1]), 6):
+            label += f", FOV {key[1]:g}°"
+        self._db_info[label] = {
             "path": str(path), "file_bytes": path.stat().st_size,
             "built_now": built, "build_or_load_s": round(time.perf_counter() - t0, 3),
             "num_stars": int(db.num_stars), "num_patterns": int(db.num_patterns),
             "params": params}
-        self._dbs[mag_limit] = db
+        self._dbs[key] = db
         return db
 
-    def setup(self, cond: Condition) -> None:
+    def setup(self, cond: Condition, camera) -> None:
         limit = self.cfg.mag_limit if cond.mag_limit is None else cond.mag_limit
-        self.db = self._database(float(limit))
+        self.camera = camera
+        self.centre = np.array([(camera.width - 1) / 2, (camera.height - 1) / 2])
+        self.db = self._database(float(limit), camera.fov_x_deg)
         self.kw = {
             "fov_estimate_deg": self.camera.fov_x_deg, "image_width": self.camera.width,
             "image_height": self.camera.height, "fov_max_error_deg": 0.5,
@@ -670,7 +977,8 @@ class _Cedar(_Adapter):
             raise RuntimeError(f"cedar worker exited: {' | '.join(tail)}")
         return json.loads(line)
 
-    def setup(self, cond: Condition) -> None:
+    def setup(self, cond: Condition, camera) -> None:
+        self.camera = camera
         self.kw = {"fov_estimate": self.camera.fov_x_deg, "fov_max_error": 0.5,
                    "solve_timeout": self.cfg.peer_timeout_ms}
         mme = peer_match_max_error(float(cond.sigma_px or 0.0), self.camera.width)
@@ -805,7 +1113,7 @@ def _conversion_check(adapters: Sequence[_Adapter], cfg: BenchConfig, camera,
               for i in range(n)]
     out: dict[str, dict[str, Any]] = {}
     for a in adapters:
-        a.setup(cond)
+        a.setup(cond, camera)
         errs = []
         for f in frames:
             o = a.solve(f)
@@ -826,12 +1134,16 @@ def _make_adapters(cfg: BenchConfig, camera, cache: Path) -> tuple[list[_Adapter
         try:
             if name == "ours":
                 adapters.append(_Ours(cfg, camera))
+            elif name == "ours_tracking":
+                adapters.append(_OursTracking(cfg, camera,
+                                              getattr(cfg, "prior_sigma_deg", 0.1)))
             elif name == "tetra3rs":
                 adapters.append(_Tetra3rs(cfg, camera, cache))
             elif name == "cedar":
                 adapters.append(_Cedar(cfg, camera, cache))
             else:
-                raise ValueError(f"unknown solver {name!r} (choose from {SOLVER_NAMES})")
+                raise ValueError(f"unknown solver {name!r} (choose from "
+                                 f"{(*SOLVER_NAMES, 'ours_tracking')})")
         except ImportError as e:
             skipped[name] = {"status": "skipped", "reason": f"not importable: {e}"}
         except (RuntimeError, OSError, subprocess.SubprocessError, json.JSONDecodeError) as e:
@@ -869,25 +1181,25 @@ def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
         for cond in conds:
             assert cond.mag_limit is not None
             cat = _catalog(cond.mag_limit, cfg.epoch)
+            cam = camera_for(cond, cfg.width, cfg.height, cfg.fov_deg)
             for a in adapters:
-                a.setup(cond)
+                a.setup(cond, cam)
             frames: list[Frame] = []
             outcomes: dict[str, list[_Outcome]] = {a.name: [] for a in adapters}
             bar.set_postfix_str(cond.name)
             for i in range(cfg.frames):
-                f = make_frame(cat, camera, cond, cfg.seed, i, cfg.mag_noise)
+                f = make_frame(cat, cam, cond, cfg.seed, i, cfg.mag_noise)
                 frames.append(f)
                 for a in adapters:
                     outcomes[a.name].append(a.solve(f))
                 bar.update(1)
             tol = max(cfg.tol_px, cfg.tol_sigma * float(cond.sigma_px or 0.0))
-            per = {name: summarize(frames, o, camera, tol, per_frame=cfg.per_frame)
+            per = {name: summarize(frames, o, cam, tol, per_frame=cfg.per_frame)
                    for name, o in outcomes.items()}
             n_true = np.array([f.n_true for f in frames])
             entry: dict[str, Any] = {
                 "name": cond.name, "description": cond.description,
-                "params": {"n_false": cond.n_false, "drop_frac": cond.drop_frac,
-                           "sigma_px": cond.sigma_px, "mag_limit": cond.mag_limit},
+                "params": cond.params(),
                 "frames": cfg.frames,
                 "tolerance_px": tol,
                 "catalog_stars_per_frame": {

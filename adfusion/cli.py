@@ -88,6 +88,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     bench_starid.add_arguments(bs)
     bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
+    sw = bsub.add_parser("sweep", help="robustness sweeps vs the peers (dask campaigns)")
+    from adfusion import bench_sweep
+
+    bench_sweep.add_arguments(sw)
+    sw.set_defaults(func=bench_sweep.cli)
 
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
