@@ -171,10 +171,14 @@ class SweepConfig:
     progress: bool = True
 
     def job(self, solvers: Sequence[str], cache_dir: str | None) -> Job:
-        """The part of the configuration a task needs (and that its results depend on)."""
+        """The part of the configuration a task needs (and that its results depend on,
+        including the code: a partial file is not reused after it changed)."""
+        code = campaign.source_digest("starid", "sensors", "adfusion.bench_starid",
+                                      "adfusion.bench_sweep")
         return Job(self.seed, self.width, self.height, self.fov_deg, self.mag_limit,
                    self.sigma_px, self.mag_noise, self.tol_px, self.tol_sigma, self.epoch,
-                   tuple(solvers), self.prior_sigma_deg, self.peer_timeout_ms, cache_dir)
+                   tuple(solvers), self.prior_sigma_deg, self.peer_timeout_ms, cache_dir,
+                   code)
 
 
 @dataclass(frozen=True)
@@ -195,6 +199,7 @@ class Job:
     prior_sigma_deg: float
     peer_timeout_ms: float
     cache_dir: str | None
+    code: str = ""  # campaign.source_digest of the code the results depend on
 
 
 def points(cfg: SweepConfig) -> list[tuple[Sweep, float, Condition]]:
@@ -645,7 +650,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--partial", default=None, metavar="PATH",
                         help="JSON-lines file of finished tasks (default: PATH of --json + "
                              "'.partial.jsonl'); an interrupted run resumes from it, a "
-                             "bigger run reuses its finished tasks")
+                             "bigger run reuses its finished tasks (same code only)")
     parser.add_argument("--keep-partial", action="store_true",
                         help="keep the partial file after a complete run (e.g. --quick first, "
                              "then the full grid on top of it)")

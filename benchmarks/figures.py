@@ -11,8 +11,8 @@ and ``<!-- figures:end -->`` markers (nothing else in the README is touched)::
 
 The sweep and the Renken grid run as dask campaigns (``--workers``, ``--scheduler``); their
 partial files are kept in the adfusion cache folder, so an interrupted run resumes and
-``--full`` after a quick run reuses the quick grid's finished points (delete them after
-changing the solver: a task's fingerprint covers its inputs, not the code).
+``--full`` after a quick run reuses the quick grid's finished points (as long as the code
+is unchanged: a digest of the sources is part of every task).
 
 Example (the README block from stored results):
     >>> block = readme_block({"sweep": None, "renken": None, "filters": None})

@@ -109,9 +109,10 @@ def two_star_counts(catalog, index, tol_deg: float, n_frames: int, seed: int) ->
     return out
 
 
-def run_chunk(payload: tuple[float, float, int, int, float]) -> dict[str, int]:
-    """Campaign task: one chunk of one cell (counts; ``frames`` frames from ``seed``)."""
-    mag, tol, frames, seed, merge_px = payload
+def run_chunk(payload: tuple[float, float, int, int, float, str]) -> dict[str, int]:
+    """Campaign task: one chunk of one cell (counts; ``frames`` frames from ``seed``; the
+    last item, the code's digest, only keeps a partial file from outliving the code)."""
+    mag, tol, frames, seed, merge_px, _ = payload
     cat, index = _catalog_and_index(mag, merge_px)
     cell = simulate_cell(cat, mag, tol, frames, seed, index=index)
     out = {k: v for k, v in asdict(cell).items() if k in _FIELDS}
@@ -129,12 +130,14 @@ def run(frames: int = 2000, seed: int = 1998, merge_px: float = 2.0, chunk: int 
         progress: bool = True) -> dict[str, Any]:
     """Run the grid as a campaign; the result document (counts, η, published figures)."""
     grid = cells or [(m, t) for m in PUBLISHED_ETA for t in TOLERANCES]
+    code = campaign.source_digest("starid")
     tasks = []
     for k, (mag, tol) in enumerate(grid):
         for j, start in enumerate(range(0, frames, chunk)):
             n = min(chunk, frames - start)
             tasks.append(campaign.Task(f"{mag}/{tol}/{j}",
-                                       (mag, tol, n, _chunk_seed(seed, k, j), merge_px), n))
+                                       (mag, tol, n, _chunk_seed(seed, k, j), merge_px, code),
+                                       n))
     res = campaign.run_campaign(run_chunk, tasks, workers=workers, scheduler=scheduler,
                                 partial=partial, progress=progress, desc="renken §8",
                                 unit="frame")
