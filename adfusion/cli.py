@@ -68,6 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--mag-limit", type=float, default=None,
                     help="catalogue limit (default: the log's, else 5.5)")
     rp.add_argument("--json", action="store_true", help="print the summary as JSON")
+    rp.add_argument("--smooth", action="store_true",
+                    help="also smooth the whole log (GTSAM) into /smoothed/state and "
+                         "/smoothed/pose")
+    rp.add_argument("--smoother", choices=["batch", "isam2"], default="batch",
+                    help="with --smooth: Levenberg–Marquardt batch (default) or iSAM2")
     rp.set_defaults(func=cmd_replay)
 
     rq = sub.add_parser("report", help="plots and a summary of a replayed log")
@@ -286,9 +291,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from adfusion.pipeline import replay
 
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
-               mag_limit=args.mag_limit, progress=sys.stderr.isatty())
+               mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
+               smooth=args.smooth, smooth_mode=args.smoother)
     print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
-    return 0
+    return 1 if s.smoother.get("error") else 0  # the filter's output is written either way
 
 
 def cmd_report(args: argparse.Namespace) -> int:

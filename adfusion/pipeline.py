@@ -96,12 +96,23 @@ class ReplaySummary:
     sigmas_deg: list[float] = field(default_factory=list)
     wall_s: float = 0.0
     problem: str = ""
+    smoothed_errors_deg: list[float] = field(default_factory=list)
+    smoothed_sigmas_deg: list[float] = field(default_factory=list)
+    smoother: dict[str, Any] = field(default_factory=dict)  # replay(smooth=True) only
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
         e = np.asarray(self.errors_deg)
         d.pop("errors_deg")
         d.pop("sigmas_deg")
+        es, ss = np.asarray(d.pop("smoothed_errors_deg")), np.asarray(d.pop("smoothed_sigmas_deg"))
+        if len(es):
+            d.update(smoothed_error_rms_deg=float(np.sqrt(np.mean(es**2))),
+                     smoothed_error_max_deg=float(es.max()),
+                     smoothed_error_p95_deg=float(np.percentile(es, 95)),
+                     smoothed_inside_3sigma=float(np.mean(es <= 3 * ss)))
+        if not self.smoother:
+            d.pop("smoother")
         if len(e):
             d.update(error_rms_deg=float(np.sqrt(np.mean(e**2))), error_max_deg=float(e.max()),
                      error_p95_deg=float(np.percentile(e, 95)))
@@ -120,6 +131,19 @@ class ReplaySummary:
         if "error_rms_deg" in d:
             lines.append(f"attitude error vs truth: RMS {d['error_rms_deg']:.4f}°, p95 "
                          f"{d['error_p95_deg']:.4f}°, max {d['error_max_deg']:.4f}°")
+        if self.smoother.get("error"):
+            lines.append(f"smoother failed: {self.smoother['error']}")
+        elif self.smoother:
+            sm = self.smoother
+            line = (f"smoothed ({sm['mode']}, {sm['states']} states, "
+                    f"{sm['build_s'] + sm['optimize_s'] + sm['covariance_s']:.1f} s)")
+            if "smoothed_error_rms_deg" in d:
+                line += (f": RMS {d['smoothed_error_rms_deg']:.4f}°, p95 "
+                         f"{d['smoothed_error_p95_deg']:.4f}°, max "
+                         f"{d['smoothed_error_max_deg']:.4f}°, inside 3σ "
+                         f"{100 * d['smoothed_inside_3sigma']:.1f} %")
+            lines.append(line)
+            lines += [f"smoother: {p}" for p in sm["problems"]]
         if d["frames_per_s"]:
             lines.append(f"{d['frames_per_s']:.1f} frames/s end to end ({self.wall_s:.1f} s)")
         if self.problem:
@@ -135,11 +159,19 @@ def replay(
     use_mag: bool = True,
     mag_limit: float | None = None,
     progress: bool = True,
+    smooth: bool = False,
+    smooth_mode: str = "batch",
 ) -> ReplaySummary:
     """Replay ``in_path`` through detection → identification → filter into ``out_path``.
 
     ``use_gyro=False`` is the video-only mode (the real OEDIPUS-C case: no gyro was
-    digitised): the filter estimates the body rate from the star fixes themselves."""
+    digitised): the filter estimates the body rate from the star fixes themselves.
+
+    ``smooth=True`` records every frame's identified stars with the gyro and magnetometer
+    samples and, after the filter pass, smooths the whole log (:mod:`adfusion.smoother`,
+    ``smooth_mode`` "batch" or "isam2"); the smoothed history goes to ``/smoothed/state``
+    and ``/smoothed/pose`` next to the filter's topics. A smoother failure is reported in
+    ``summary.smoother["error"]``; the filter's output stands."""
     t_start = time.perf_counter()
     reader = McapLogReader(in_path)
     model = reader.camera_model()
@@ -160,6 +192,12 @@ def replay(
                     video_only=not use_gyro)
     summary = ReplaySummary()
     truth_q: np.ndarray | None = None
+    recording, truth_frames = None, []  # for the smoother
+    if smooth:
+        from adfusion.smoother import SmootherInput
+
+        recording = SmootherInput(q_body_cam, arw_rad_sqrt_s=est.arw, rrw_rad_s_sqrt_s=est.rrw,
+                                  sigma_mag_rad=est.sigma_mag_rad, video_only=not use_gyro)
     messages = reader if not progress else _progress(reader)
     with LogWriter(out_path) as log:
         log.add_metadata("replay", {"input": str(in_path), "use_gyro": use_gyro,
@@ -173,10 +211,14 @@ def replay(
             if topic == "/imu/gyro":
                 if use_gyro:
                     est.step(t, gyro=p["omega"])
+                    if recording is not None:
+                        recording.add_gyro(t, p["omega"])
                 log.write_json(topic, t, p)
             elif topic == "/mag":
                 if use_mag and "b_ref_icrs" in p:
                     est.step(t, mag=(p["b_body"], p["b_ref_icrs"]))
+                    if recording is not None:
+                        recording.add_mag(t, p["b_body"], p["b_ref_icrs"])
                 log.write_json(topic, t, p)
             elif topic == "/truth/state":
                 truth_q = np.asarray(p["q_body_icrs"], dtype=np.float64)
@@ -189,6 +231,11 @@ def replay(
                     rec = est.step(t, detections=np.asarray(p["xy"], dtype=np.float64))
                 _record_frame(log, t, rec, est, q_body_cam)
                 _count(summary, rec, truth_q, catalog, camera, q_body_cam)
+                if recording is not None:
+                    recording.add_step(t, rec, solver)
+                    truth_frames.append((t, truth_q))
+        if recording is not None:
+            _smooth_into(log, recording, smooth_mode, summary, truth_frames)
     summary.wall_s = time.perf_counter() - t_start
     if reader.problem is not None:
         summary.problem = str(reader.problem)
@@ -245,6 +292,37 @@ def _count(s: ReplaySummary, rec: StepRecord, truth_q, catalog, camera, q_body_c
         if rec.q_body_icrs is not None:
             s.errors_deg.append(float(np.degrees(rot.angle_between(rec.q_body_icrs, truth_q))))
             s.sigmas_deg.append(float(np.degrees(np.linalg.norm(rec.sigma_rad[:3]))))
+
+
+def _smooth_into(log: LogWriter, recording, mode: str, s: ReplaySummary,
+                 truth_frames: list[tuple[float, Any]]) -> None:
+    """Smooth the recorded log; write ``/smoothed/state`` and ``/smoothed/pose``; score."""
+    from adfusion.smoother import SmootherError
+    from adfusion.smoother import smooth as run_smoother
+
+    try:
+        res = run_smoother(recording, mode=mode)
+    except SmootherError as e:
+        s.smoother = {"error": str(e)}
+        return
+    s.smoother = res.as_dict()
+    down: dict[float, list[int]] = {}
+    for t_o, star, _ in res.outliers:
+        down.setdefault(t_o, []).append(star)
+    truth = dict(truth_frames)  # frame time → truth (None without): frames may be left out
+    for k, t in enumerate(res.t.tolist()):
+        q = res.q_body_icrs[k]
+        state = {"t": t, "q_body_icrs": q, "bias": res.bias_rad_s[k],
+                 "cov_diag": res.cov_diag[k], "nis": None,  # a smoother has no innovations
+                 "n_stars": int(res.n_stars[k]), "chi2_stars": res.chi2_stars[k],
+                 "downweighted": down.get(t, [])}
+        if res.omega_rad_s is not None:
+            state["omega"] = res.omega_rad_s[k]
+        log.write_json("/smoothed/state", t, state)
+        log.write_attitude("/smoothed/pose", t, q)
+        if truth.get(t) is not None:
+            s.smoothed_errors_deg.append(float(np.degrees(rot.angle_between(q, truth[t]))))
+            s.smoothed_sigmas_deg.append(float(np.degrees(res.sigma_rad[k])))
 
 
 def _progress(reader):
