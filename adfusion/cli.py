@@ -67,6 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
     rp.add_argument("--mag-limit", type=float, default=None,
                     help="catalogue limit (default: the log's, else 5.5)")
+    rp.add_argument("--compression", choices=["lz4", "zstd", "none"], default="lz4",
+                    help="output chunk compression (default lz4: fast; zstd: smaller)")
     rp.add_argument("--json", action="store_true", help="print the summary as JSON")
     rp.add_argument("--smooth", action="store_true",
                     help="also smooth the whole log (GTSAM) into /smoothed/state and "
@@ -292,7 +294,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
-               smooth=args.smooth, smooth_mode=args.smoother)
+               smooth=args.smooth, smooth_mode=args.smoother,
+               compression=args.compression)
     print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
     return 1 if s.smoother.get("error") else 0  # the filter's output is written either way
 

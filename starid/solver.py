@@ -188,6 +188,9 @@ class Solver:
         dec_check: Renken's declination-difference pre-check (faithful mode only).
         max_detections: the brightest detections considered (the rest are ignored).
         max_patterns: Not-Modus budget (patterns tried per focal scale).
+        max_fix_sigma_px: a tracking fix less certain than this is refused: its 1-σ
+            error moves the frame's corners by more than this many pixels (two stars close
+            together leave the roll open; such a fix would misplace the frame's edges).
         max_tracking_cone_deg: a prior looser than this (k·σ) goes straight to
             lost-in-space: beyond it, associating by prediction is no longer safe.
         p_false_max_tracking: acceptance threshold with a prior. Tracking asks a much
@@ -218,6 +221,7 @@ class Solver:
         method: str = "nstar",
         triad_params=None,
         max_tracking_cone_deg: float = 3.0,
+        max_fix_sigma_px: float = 5.0,
         p_false_max_tracking: float = 1e-4,
     ) -> None:
         if method not in ("nstar", "triad"):
@@ -225,6 +229,7 @@ class Solver:
         self.method = method
         self.triad_params = triad_params
         self.max_tracking_cone_deg = float(max_tracking_cone_deg)
+        self.max_fix_sigma_px = float(max_fix_sigma_px)
         self.p_false_max_tracking = float(p_false_max_tracking)
         self._triad_db = None
         if not 2 <= n_min <= n_max <= 8:
@@ -572,15 +577,26 @@ class Solver:
             w = wahba_unit(b_use, self.vectors[cat_i], self.centroid_sigma_px * pix_rad)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
+        worst_px = float(w.residuals_rad.max()) / pix_rad
+        if worst_px > tight:
+            # every tracked star must sit where the fit puts it: pieces of a streak from
+            # different instants (motion blur) or a wrong pairing do not
+            return Solution(False, f"tracked stars inconsistent: a residual of "
+                                   f"{worst_px:.3g} px > {tight:.3g} px", mode="tracking")
         offset = _angle_between_unit(w.q_cam_icrs, q0)
         # trace(P) ≥ its largest eigenvalue: a bound, at most √3 too wide, for free
         sigma_fix = math.sqrt(float(w.covariance.trace()))
         if offset > gate_rad + 3 * sigma_fix:
             return Solution(False, f"fix {math.degrees(offset):.3g}° from the prior, outside "
                                    f"its {prior.k:g}σ gate", mode="tracking")
+        cov = w.covariance * _variance_factor(w)
+        corner_px = _corner_sigma_px(cov, cam)
+        if corner_px > self.max_fix_sigma_px:
+            return Solution(False, f"fix too uncertain: 1σ {corner_px:.3g} px at the frame's "
+                                   f"corners > {self.max_fix_sigma_px:g} px (stars too close "
+                                   "together, or inconsistent)", mode="tracking")
         p_hit = min(1.0, len(pred_xy) * math.pi * tight**2 / (cam.width * cam.height))
         p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
-        cov = w.covariance * _variance_factor(w)
         matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
         cand = Candidate(
             q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,
@@ -843,6 +859,17 @@ def _angle_between_unit(p: NDArray, q: NDArray) -> float:
     dm = math.sqrt(sum((x - sgn * y) ** 2 for x, y in zip(a, b, strict=True)))
     dp = math.sqrt(sum((x + sgn * y) ** 2 for x, y in zip(a, b, strict=True)))
     return 4.0 * math.atan2(dm, dp)
+
+
+def _corner_sigma_px(cov: NDArray, cam: Camera) -> float:
+    """1-σ shift (px) of the frame's corners under an attitude covariance (camera frame):
+    pointing errors (x, y axes) move a corner by f·(1 + tan²θ) per radian, roll (z) by its
+    distance r from the centre; correlations ignored (an upper estimate)."""
+    f = 1.0 / cam.pixel_scale_rad
+    r = 0.5 * math.hypot(cam.width, cam.height)
+    k = f * (1.0 + (r / f) ** 2)
+    return math.sqrt(max(0.0, float(cov[0, 0] + cov[1, 1])) * k * k
+                     + max(0.0, float(cov[2, 2])) * r * r)
 
 
 def _variance_factor(w) -> float:

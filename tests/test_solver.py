@@ -324,3 +324,25 @@ def test_duplicate_check_tells_shared_coordinates_from_duplicates(wide):
     # huge but finite coordinates: their sum overflows, yet nothing is non-finite
     far = np.array([[1e308, 1e308], [1e308, -1e308], [5.0, 5.0]])
     assert "far outside the frame" in s.solve(far).reason
+
+
+def test_tracking_refuses_a_two_star_fix_that_leaves_the_roll_open(cat, cam, solver):
+    """Two stars a few pixels apart fix the pointing but hardly the roll; such a fix
+    (found in the robustness sweep: 18° off, its own roll 1σ 92°) would misplace the
+    frame's edges, so tracking refuses it with a reason instead of accepting it."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(cat.vectors).query_pairs(np.radians(5 * 15.0 / 1024))  # ≤ 5 px apart
+    a, b = sorted(pairs)[0]
+    mid = cat.vectors[a] + cat.vectors[b]
+    ra, dec = rot.vector_to_radec(mid / np.linalg.norm(mid))
+    q = rot.q_cam_icrs_from_radec_roll(float(ra), float(dec), 0.3)
+    xy = cam.vectors_to_pixels(rot.rotate(q, cat.vectors[[a, b]]))
+    sol = solver.solve(xy, prior=starid.Prior(q, 0.05))
+    assert not sol.ok and "too uncertain" in sol.reason and "px at the frame's corners" in \
+        sol.reason
+    # the same two stars far apart in a frame are a fine fix
+    _, xy_all = stars_in_view(cat, cam, q)
+    far = [0, int(np.argmax(np.linalg.norm(xy_all - xy_all[0], axis=1)))]
+    sol = solver.solve(xy_all[far], prior=starid.Prior(q, 0.05))
+    assert sol.ok and sol.mode == "tracking" and attitude_error_deg(sol, q) < 0.05
