@@ -310,13 +310,16 @@ def small_angle(dtheta: ArrayLike) -> Array:
 def angle_between(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64] | float:
     """Angle (rad) of the rotation taking q to p: ``|log(p ⊗ q⁻¹)|``, in [0, π]."""
     p, q = _as_quat(p), _as_quat(q)
-    if p.ndim == 1 and q.ndim == 1:  # scalar fast path (solver, filters)
-        pl, ql = p.tolist(), q.tolist()
-        npn = sum(x * x for x in pl) ** 0.5
-        nq = sum(x * x for x in ql) ** 0.5
-        sgn = 1.0 if sum(a * b for a, b in zip(pl, ql, strict=True)) >= 0 else -1.0
-        dm = sum((a / npn - sgn * b / nq) ** 2 for a, b in zip(pl, ql, strict=True)) ** 0.5
-        dp = sum((a / npn + sgn * b / nq) ** 2 for a, b in zip(pl, ql, strict=True)) ** 0.5
+    if p.ndim == 1 and q.ndim == 1:  # scalar fast path (per frame in tracking, filters)
+        (a0, a1, a2, a3), (b0, b1, b2, b3) = p.tolist(), q.tolist()
+        ka = 1.0 / math.sqrt(a0 * a0 + a1 * a1 + a2 * a2 + a3 * a3)
+        kb = 1.0 / math.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
+        if a0 * b0 + a1 * b1 + a2 * b2 + a3 * b3 < 0:
+            kb = -kb
+        a0, a1, a2, a3 = a0 * ka, a1 * ka, a2 * ka, a3 * ka
+        b0, b1, b2, b3 = b0 * kb, b1 * kb, b2 * kb, b3 * kb
+        dm = math.sqrt((a0 - b0) ** 2 + (a1 - b1) ** 2 + (a2 - b2) ** 2 + (a3 - b3) ** 2)
+        dp = math.sqrt((a0 + b0) ** 2 + (a1 + b1) ** 2 + (a2 + b2) ** 2 + (a3 + b3) ** 2)
         return 4.0 * math.atan2(dm, dp)
     p = p / np.linalg.norm(p, axis=-1, keepdims=True)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
