@@ -343,8 +343,7 @@ class McapLogReader:
         for r in breakup_chunk(chunk, validate_crc=True):
             if isinstance(r, McapMessage):
                 out.append(r)
-            elif r.__class__ in (Schema, Channel) and r.id not in (
-                    self._schemas if isinstance(r, Schema) else self.channels):
+            else:  # schemas and channels a summary did not repeat
                 self._take(r)
         return out
 

@@ -583,7 +583,7 @@ class Solver:
                 w = wahba_unit(b_use, self.vectors[cat_i], self.centroid_sigma_px * pix_rad)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
-        offset = _angle_between_unit(w.q_cam_icrs, q0)
+        offset = float(rot.angle_between(w.q_cam_icrs, q0))
         # trace(P) ≥ its largest eigenvalue: a bound, at most √3 too wide, for free
         sigma_fix = math.sqrt(float(w.covariance.trace()))
         if offset > gate_rad + 3 * sigma_fix:
@@ -788,10 +788,7 @@ class Solver:
         half = 0.5 * math.radians(cam.diagonal_fov_deg) + margin_rad + 1e-3
         idx, vec = self._cone(R[2], half)  # R[2]: the camera +z axis in ICRS
         pxy = cam.vectors_to_pixels(vec @ R.T)
-        m = margin_rad / cam.pixel_scale_rad
-        # Camera.in_frame, inlined (per-frame path); NaN (behind the camera) is outside
-        inside = ((pxy >= -0.5 - m) & (pxy <= (cam.width - 0.5 + m, cam.height - 0.5 + m))
-                  ).all(axis=1)
+        inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
         return pxy[inside], idx[inside]
 
     def _cone(self, axis: NDArray, half_rad: float) -> tuple[NDArray[np.int64], NDArray]:
@@ -850,15 +847,6 @@ def _pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
     """Each detection to its nearest predicted star within a radius, one-to-one."""
     det, j = _one_to_one(*cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px))
     return det, pred_idx[j].astype(np.int64)
-
-
-def _angle_between_unit(p: NDArray, q: NDArray) -> float:
-    """Rotation angle between two unit quaternions, 4·atan2(|p∓q|, |p±q|) in floats."""
-    a, b = p.tolist(), q.tolist()
-    sgn = 1.0 if sum(x * y for x, y in zip(a, b, strict=True)) >= 0 else -1.0
-    dm = math.sqrt(sum((x - sgn * y) ** 2 for x, y in zip(a, b, strict=True)))
-    dp = math.sqrt(sum((x + sgn * y) ** 2 for x, y in zip(a, b, strict=True)))
-    return 4.0 * math.atan2(dm, dp)
 
 
 def _corner_sigma_px(cov: NDArray, cam: Camera) -> float:
