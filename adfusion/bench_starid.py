@@ -101,6 +101,7 @@ __all__ = [
     "BenchConfig",
     "Condition",
     "Frame",
+    "FrameModel",
     "Trial",
     "add_arguments",
     "aggregate",
@@ -628,10 +629,10 @@ def aggregate(trials: Sequence[Trial], list_max: int = 50,
 
 
 @dataclass
-class BenchConfig:
-    """Everything that determines a run (recorded in the JSON)."""
+class FrameModel:
+    """The synthetic camera, sky and scoring every benchmark frame comes from — one set
+    of defaults for ``bench starid`` (:class:`BenchConfig`) and ``bench sweep``."""
 
-    frames: int = 200
     seed: int = 0
     width: int = 1024
     height: int = 768
@@ -641,8 +642,15 @@ class BenchConfig:
     mag_noise: float = 0.1
     tol_px: float = 5.0
     tol_sigma: float = 4.0
-    per_frame: bool = False
     epoch: float = 2025.0
+
+
+@dataclass
+class BenchConfig(FrameModel):
+    """Everything that determines a run (recorded in the JSON)."""
+
+    frames: int = 200
+    per_frame: bool = False
     conditions: list[str] = field(default_factory=lambda: list(CONDITIONS))
     solvers: list[str] = field(default_factory=lambda: list(SOLVER_NAMES))
     peer_timeout_ms: float = 5000.0

@@ -136,7 +136,7 @@ SWEEPS: dict[str, Sweep] = {s.name: s for s in (
 
 
 @dataclass
-class SweepConfig:
+class SweepConfig(bs.FrameModel):
     """Everything that determines a sweep run (recorded in the JSON).
 
     ``values`` overrides the grid of a sweep (name → values). ``workers``: local dask
@@ -146,19 +146,9 @@ class SweepConfig:
 
     trials: int = 1000
     quick: bool = False
-    seed: int = 0
     sweeps: list[str] = field(default_factory=lambda: list(SWEEPS))
     values: dict[str, tuple[float, ...]] = field(default_factory=dict)
     solvers: list[str] = field(default_factory=lambda: list(SOLVERS))
-    width: int = 1024
-    height: int = 768
-    fov_deg: float = 15.0
-    mag_limit: float = 6.0
-    sigma_px: float = 0.1
-    mag_noise: float = 0.1
-    tol_px: float = 5.0
-    tol_sigma: float = 4.0
-    epoch: float = 2025.0
     prior_sigma_deg: float = 0.1
     exposure_s: float = 0.1
     peer_timeout_ms: float = 5000.0
