@@ -775,6 +775,8 @@ class _Ours(_Adapter):
 def tracking_prior(frame: Frame, sigma_deg: float):
     """A filter-like prior for tracking: the true attitude tilted by a random error drawn
     from N(0, σ²) per axis, with that σ (deterministic per seed, frame and condition).
+    On a rendered (streaked) frame the prior also carries the exposure's rotation
+    (``smear_cam_rad`` = ω·T), as a filter with a gyro knows it.
 
     >>> f = Frame("x", 4, random_attitude(0, 4), np.zeros((0, 2)), np.zeros(0, np.int64), 0)
     >>> p = tracking_prior(f, 0.1)
@@ -787,7 +789,11 @@ def tracking_prior(frame: Frame, sigma_deg: float):
 
     rng = np.random.default_rng([frame.seed, frame.index, _cond_key(frame.condition), 1])
     dtheta = np.radians(sigma_deg) * rng.normal(size=3)
-    return Prior(rot.multiply(rot.exp_map(dtheta), frame.q_cam_icrs), float(sigma_deg))
+    smear = None
+    if frame.omega_cam_rad_s is not None and frame.exposure_s > 0:
+        smear = np.asarray(frame.omega_cam_rad_s, dtype=np.float64) * frame.exposure_s
+    return Prior(rot.multiply(rot.exp_map(dtheta), frame.q_cam_icrs), float(sigma_deg),
+                 smear_cam_rad=smear)
 
 
 class _OursTracking(_Ours):

@@ -95,6 +95,11 @@ class Estimator:
             OEDIPUS-like replay: 1 → the estimate inside its 3σ bound 81 % of the time,
             4 → 99.3 % (RMS error 0.024° → 0.028°). Use 1 for truly independent fixes.
         detect: the detection function for ``frame=`` (default ``starid.detect``).
+        exposure_s: the camera's exposure (s), if known. With it, tracking priors carry
+            the rotation during the exposure (the rate estimate × exposure, camera axes),
+            so the solver trusts streaked stars only across their streaks and reports
+            the larger along-streak uncertainty (:class:`starid.Prior`); a step may
+            override it (``step(..., exposure_s=...)``).
     """
 
     def __init__(
@@ -117,7 +122,11 @@ class Estimator:
         video_only: bool = False,
         rate_walk_rad_s_sqrt_s: float = 0.025,
         sigma_rate0_rad_s: float = 5.0,
+        exposure_s: float | None = None,
     ) -> None:
+        if exposure_s is not None and not (np.isfinite(exposure_s) and exposure_s >= 0):
+            raise ValueError(f"exposure_s must be a finite duration ≥ 0, got {exposure_s}")
+        self.exposure_s = None if exposure_s is None else float(exposure_s)
         if not fix_covariance_scale >= 1.0:
             raise ValueError(f"fix_covariance_scale must be ≥ 1, got {fix_covariance_scale}")
         self.fix_covariance_scale = float(fix_covariance_scale)
@@ -165,12 +174,14 @@ class Estimator:
         mag: tuple[ArrayLike, ArrayLike] | None = None,
         frame: NDArray | str | None = None,
         detections=None,
+        exposure_s: float | None = None,
     ) -> StepRecord:
         """Advance to time ``t`` (s) and apply the measurements taken at ``t``.
 
         ``gyro``: body rate (rad/s). ``mag``: (field in the body frame, the same field in
         ICRS) in any common unit. ``frame``: an image (detected here) or ``detections``
-        (a :class:`starid.Detections` or an (N, 2) / (N, 3) array).
+        (a :class:`starid.Detections` or an (N, 2) / (N, 3) array), taken at mid-exposure;
+        ``exposure_s`` overrides the estimator's exposure for this frame.
         """
         rec = StepRecord(t=float(t), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
         if not np.isfinite(t):
@@ -191,7 +202,8 @@ class Estimator:
                 self._omega_hold = g
                 rec.sensors.append("gyro")
         if frame is not None or detections is not None:
-            self._star_update(frame, detections, rec)
+            self._star_update(frame, detections, rec,
+                              self.exposure_s if exposure_s is None else exposure_s)
         if mag is not None:
             self._mag_update(mag, rec)
         return self._finish(rec)
@@ -206,7 +218,8 @@ class Estimator:
                 self.filter.propagate(t - self.t, self.filter.bias_rad_s)
         self.t = t
 
-    def _star_update(self, frame, detections, rec: StepRecord) -> None:
+    def _star_update(self, frame, detections, rec: StepRecord,
+                     exposure_s: float | None = None) -> None:
         if self.solver is None:
             rec.rejected.append(("camera", "no solver configured"))
             return
@@ -233,7 +246,7 @@ class Estimator:
             sigma = max(self.filter.search_cone_deg(k=1.0), self.min_cone_deg)
             sigma *= self.widen_per_miss ** self.misses
             rec.cone_deg = 3.0 * sigma
-            prior = Prior(q_cam_icrs, sigma)
+            prior = Prior(q_cam_icrs, sigma, smear_cam_rad=self._smear(exposure_s))
         try:
             sol = self.solver.solve(detections, prior=prior)
         except ValueError as e:
@@ -276,6 +289,19 @@ class Estimator:
             rec.rejected.append(("star fix", f"{sol.mode} fix rejected by the filter gate: "
                                              f"{res.reason}"))
             self.misses += 1
+
+    def _smear(self, exposure_s: float | None) -> NDArray[np.float64] | None:
+        """The camera's rotation during the exposure (rad, camera axes) from the rate
+        estimate: the gyro's last sample less the bias, or the video-only filter's rate."""
+        if not exposure_s or self.filter is None:
+            return None
+        if self.video_only:
+            omega_body = np.asarray(self.filter.omega_rad_s)  # RateMEKF: its rate state
+        elif self._omega_hold is not None:
+            omega_body = self._omega_hold - np.asarray(self.filter.bias_rad_s)
+        else:
+            return None
+        return (self.R_body_cam.T @ omega_body) * float(exposure_s)
 
     def _mag_update(self, mag, rec: StepRecord) -> None:
         try:

@@ -19,6 +19,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from starid import rotations as rot
 
-__all__ = ["WahbaSolution", "wahba", "wahba_unit"]
+__all__ = ["WahbaSolution", "refine_streaked", "streak_vectors", "wahba", "wahba_unit"]
 
 
 @dataclass(frozen=True)
@@ -124,3 +125,123 @@ def _inverse_information(S: list[list[float]], w_sum: float,
     k = 1.0 / (det * scale)
     return np.array([[c00 * k, c01 * k, c02 * k], [c01 * k, c11 * k, c12 * k],
                      [c02 * k, c12 * k, c22 * k]])
+
+
+def refine_streaked(q_cam_icrs: ArrayLike, b: NDArray[np.float64], r: NDArray[np.float64],
+                    sigma_rad: float, smear_cam_rad: ArrayLike, whole_rad: float = 0.0,
+                    iterations: int = 1) -> WahbaSolution:
+    """Attitude at mid-exposure from stars smeared by the camera's rotation.
+
+    During an exposure the camera turns through the rotation vector ``smear_cam_rad``
+    (ω·T, camera axes), so each star draws a streak of angular length
+    ``L = |smear × b|`` along ``smear × b``. A detection is the centroid of the streak, or
+    of a *piece* of it when a long streak breaks up in the noise. Streaks up to
+    ``whole_rad`` long are taken to be detected whole (centroid at mid-exposure), and the
+    pieces of a longer one to span at least ``whole_rad``: a piece's centroid then lies
+    anywhere within ``L − whole_rad`` along the streak (uniformly), so a detection is good
+    to ``sigma_rad`` across the streak and to ``√(σ² + (L − whole_rad)²/12)`` along it.
+    This Gauss–Newton
+    fit starts from ``q_cam_icrs`` (an isotropic fit), weighs each star with that 2×2
+    information, and returns the covariance that goes with it (camera frame, rad²) —
+    honest along the streaks, where an isotropic fit claims the centroid noise.
+
+    ``loss`` is the weighted sum of squared residuals (for a variance factor) and
+    ``residuals_rad`` the plain angular residuals.
+
+    Example:
+        >>> import numpy as np
+        >>> from starid import rotations as rot
+        >>> q = rot.q_cam_icrs_from_radec_roll(1.0, 0.5, 0.2)
+        >>> r = rot.radec_to_vector([1.0, 1.02, 0.98, 1.01], [0.5, 0.51, 0.52, 0.49])
+        >>> b = rot.rotate(q, r)
+        >>> s = refine_streaked(q, b, r, 1e-5, [0.0, 0.01, 0.0])
+        >>> bool(rot.angle_between(s.q_cam_icrs, q) < 1e-9)
+        True
+        >>> # turning about y smears the stars along x: the y-axis error is the loose one
+        >>> bool(s.covariance[1, 1] > 1e4 * s.covariance[0, 0])
+        True
+    """
+    q = rot.normalize(np.asarray(q_cam_icrs, dtype=np.float64))
+    sx, sy, sz = np.asarray(smear_cam_rad, dtype=np.float64).reshape(3).tolist()
+    # written for numpy's per-call overhead (this runs per streaked frame in tracking):
+    # cross products as one matmul with a skew matrix, 3×3 algebra in plain floats
+    v = streak_vectors(b, (sx, sy, sz))
+    length = np.sqrt(np.einsum("ij,ij->i", v, v))
+    still = length < 1e-300
+    u_a = v / np.where(still, 1.0, length)[:, None]
+    if still.any():
+        u_a[still] = _any_tangent(b[still])
+    u_c = np.empty_like(b)  # b × u_a
+    u_c[:, 0] = b[:, 1] * u_a[:, 2] - b[:, 2] * u_a[:, 1]
+    u_c[:, 1] = b[:, 2] * u_a[:, 0] - b[:, 0] * u_a[:, 2]
+    u_c[:, 2] = b[:, 0] * u_a[:, 1] - b[:, 1] * u_a[:, 0]
+    w_c = 1.0 / sigma_rad**2
+    spread = np.maximum(length - whole_rad, 0.0)
+    w_a = 1.0 / (sigma_rad**2 + spread * spread / 12.0)
+    # residual e = b − R r ≈ δθ × p: along u_a it reads δθ·u_c, across (u_c) −δθ·u_a
+    wu_c = w_a[:, None] * u_c
+    cov = _inverse_symmetric((wu_c.T @ u_c + w_c * (u_a.T @ u_a)).tolist())
+    for _ in range(iterations + 1):
+        e = r @ rot.to_matrix(q).T
+        np.subtract(b, e, out=e)
+        ea = np.einsum("ij,ij->i", e, u_a)
+        ec = np.einsum("ij,ij->i", e, u_c)
+        if _ == iterations:
+            break
+        g = (ea @ wu_c - w_c * (ec @ u_a)).tolist()
+        d = [sum(cov[k][m] * g[m] for m in range(3)) for k in range(3)]
+        q = _rotate_small(d, q)
+    res = np.sqrt(ea * ea + ec * ec)
+    return WahbaSolution(q, np.array(cov), res, float(w_a @ (ea * ea) + w_c * (ec @ ec)))
+
+
+def streak_vectors(b: NDArray[np.float64], smear_cam_rad: ArrayLike) -> NDArray[np.float64]:
+    """Each star's streak (rad, tangent at ``b``) when the camera turns through the rotation
+    vector ``smear_cam_rad`` (camera axes): ``smear × b``, as one matmul.
+
+    >>> streak_vectors(np.array([[0.0, 0.0, 1.0]]), [0.0, 0.01, 0.0]).round(6).tolist()
+    [[0.01, 0.0, 0.0]]
+    """
+    sx, sy, sz = np.asarray(smear_cam_rad, dtype=np.float64).reshape(3).tolist()
+    return b @ np.array([[0.0, sz, -sy], [-sz, 0.0, sx], [sy, -sx, 0.0]])
+
+
+def _inverse_symmetric(F: list[list[float]]) -> list[list[float]]:
+    """Inverse of a symmetric positive 3×3 information matrix by the adjugate; raises for a
+    (nearly) singular one (collinear directions)."""
+    (f00, f01, f02), (_, f11, f12), (_, _, f22) = F
+    c00 = f11 * f22 - f12 * f12
+    c01 = f02 * f12 - f01 * f22
+    c02 = f01 * f12 - f02 * f11
+    det = f00 * c00 + f01 * c01 + f02 * c02
+    if not det > 1e-12 * (f00 + f11 + f22) ** 3:
+        raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
+    k = 1.0 / det
+    c11 = (f00 * f22 - f02 * f02) * k
+    c12 = (f01 * f02 - f00 * f12) * k
+    c22 = (f00 * f11 - f01 * f01) * k
+    c00, c01, c02 = c00 * k, c01 * k, c02 * k
+    return [[c00, c01, c02], [c01, c11, c12], [c02, c12, c22]]
+
+
+def _rotate_small(d: list[float], q: NDArray[np.float64]) -> NDArray[np.float64]:
+    """exp(d) ⊗ q for a rotation vector d (rad, the left frame), in floats."""
+    x, y, z = d
+    a = math.sqrt(x * x + y * y + z * z)
+    c = math.cos(0.5 * a)
+    s = 0.5 - a * a / 48.0 if a < 1e-4 else math.sin(0.5 * a) / a
+    pw, px, py, pz = c, s * x, s * y, s * z
+    qw, qx, qy, qz = q.tolist()
+    out = np.array([pw * qw - px * qx - py * qy - pz * qz,
+                    pw * qx + px * qw + py * qz - pz * qy,
+                    pw * qy - px * qz + py * qw + pz * qx,
+                    pw * qz + px * qy - py * qx + pz * qw])
+    return out / math.sqrt(float(out @ out))
+
+
+def _any_tangent(b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A unit vector perpendicular to each row of ``b`` (for stars that do not move)."""
+    t = np.cross(b, [1.0, 0.0, 0.0])
+    small = np.linalg.norm(t, axis=1) < 0.5
+    t[small] = np.cross(b[small], [0.0, 1.0, 0.0])
+    return t / np.linalg.norm(t, axis=1, keepdims=True)

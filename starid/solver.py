@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from starid import rotations as rot
-from starid.attitude import wahba_unit
+from starid.attitude import refine_streaked, streak_vectors, wahba_unit
 from starid.calibrate import fit_camera
 from starid.camera import Camera
 from starid.index import PatternIndex
@@ -78,12 +78,21 @@ class Prior:
     """An attitude prior for tracking: ``q_cam_icrs`` with a 1-σ uncertainty (deg).
 
     ``sigma_deg`` is the largest 1-σ attitude error about any axis (a filter's
-    ``search_cone_deg(k=1)``). ``k`` sets the gate in σ.
+    ``search_cone_deg(k=1)``). ``k`` sets the gate in σ. ``smear_cam_rad``, when known
+    (a gyro's rate times the exposure), is the rotation vector (rad, camera axes) the
+    camera turns through during the exposure: stars are then streaks, and a detection may
+    be any piece of one, so tracking trusts it only across the streak
+    (:func:`starid.attitude.refine_streaked`) and its covariance says so.
+
+    >>> p = Prior([1.0, 0.0, 0.0, 0.0], 0.05, smear_cam_rad=[0.0, 0.0, 0.01])
+    >>> p.smear_cam_rad.tolist()
+    [0.0, 0.0, 0.01]
     """
 
     q_cam_icrs: NDArray[np.float64]
     sigma_deg: float
     k: float = 3.0
+    smear_cam_rad: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         q = np.asarray(self.q_cam_icrs, dtype=np.float64)
@@ -97,6 +106,12 @@ class Prior:
         if not (math.isfinite(self.sigma_deg) and self.sigma_deg > 0):
             raise ValueError(f"Prior.sigma_deg must be positive, got {self.sigma_deg}")
         object.__setattr__(self, "q_cam_icrs", q)
+        if self.smear_cam_rad is not None:
+            sm = np.asarray(self.smear_cam_rad, dtype=np.float64)
+            if sm.shape != (3,) or not np.isfinite(sm).all():
+                raise ValueError("Prior.smear_cam_rad must be a finite rotation vector (3,), "
+                                 f"got {self.smear_cam_rad!r}")
+            object.__setattr__(self, "smear_cam_rad", sm)
 
 
 @dataclass(frozen=True)
@@ -197,6 +212,13 @@ class Solver:
             narrower question than lost-in-space (are these the predicted stars?), a
             filter's innovation gate checks the fix again, and two-star frames must be
             usable: 1e-4 by default.
+        whole_streak_px: with a prior's ``smear_cam_rad``, streaks up to this long (px)
+            are taken as detected whole and a longer one's pieces as at least this long
+            (:func:`starid.attitude.refine_streaked`). 8 px — about three PSF widths of a
+            star tracker's defocused image — keeps the short arcs of a spinning payload
+            (2–4 px on the OEDIPUS-like log, detected whole: trusting them fully is
+            measurably better there) and catches the 30–70 px streaks that break into
+            pieces (the rate sweep: an isotropic fit accepted pieces 10 px off).
         work_budget: maximum partial assignments per matching level.
     """
 
@@ -223,6 +245,7 @@ class Solver:
         max_tracking_cone_deg: float = 3.0,
         max_fix_sigma_px: float = 5.0,
         p_false_max_tracking: float = 1e-4,
+        whole_streak_px: float = 20.0,
     ) -> None:
         if method not in ("nstar", "triad"):
             raise ValueError(f"method must be 'nstar' or 'triad', got {method!r}")
@@ -231,6 +254,9 @@ class Solver:
         self.max_tracking_cone_deg = float(max_tracking_cone_deg)
         self.max_fix_sigma_px = float(max_fix_sigma_px)
         self.p_false_max_tracking = float(p_false_max_tracking)
+        if not (np.isfinite(whole_streak_px) and whole_streak_px >= 0):
+            raise ValueError(f"whole_streak_px must be ≥ 0, got {whole_streak_px}")
+        self.whole_streak_px = float(whole_streak_px)
         self._triad_db = None
         if not 2 <= n_min <= n_max <= 8:
             raise ValueError(f"need 2 ≤ n_min ≤ n_max ≤ 8, got {n_min}, {n_max}")
@@ -581,6 +607,13 @@ class Solver:
             if not keep.all() and keep.sum() >= 2:
                 det_i, cat_i, b_use = det_i[keep], cat_i[keep], b_use[keep]
                 w = wahba_unit(b_use, self.vectors[cat_i], self.centroid_sigma_px * pix_rad)
+            whole = self.whole_streak_px * pix_rad
+            if prior.smear_cam_rad is not None and _norm3(prior.smear_cam_rad) > whole:
+                v = streak_vectors(b_use, prior.smear_cam_rad)
+                if float(np.einsum("ij,ij->i", v, v).max()) > whole * whole:
+                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i],
+                                        self.centroid_sigma_px * pix_rad,
+                                        prior.smear_cam_rad, whole)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
         offset = float(rot.angle_between(w.q_cam_icrs, q0))
@@ -858,6 +891,11 @@ def _corner_sigma_px(cov: NDArray, cam: Camera) -> float:
     k = f * (1.0 + (r / f) ** 2)
     return math.sqrt(max(0.0, float(cov[0, 0] + cov[1, 1])) * k * k
                      + max(0.0, float(cov[2, 2])) * r * r)
+
+
+def _norm3(v: NDArray) -> float:
+    x, y, z = v.tolist()
+    return math.sqrt(x * x + y * y + z * z)
 
 
 def _variance_factor(w) -> float:
