@@ -67,7 +67,8 @@ def _frames(duration_s: float, seed: int) -> tuple[Solver, list[dict[str, Any]]]
     cat = starid.Catalog.hipparcos(mag_limit=5.5, epoch=sc.config["catalog"]["epoch"])
     solver = _Recorder(cat, sc.camera, centroid_sigma_px=0.5)
     est = Estimator(solver, sc.q_body_cam, arw_rad_sqrt_s=sc.config["gyro"]["arw_rad_sqrt_s"],
-                    rrw_rad_s_sqrt_s=sc.config["gyro"]["rrw_rad_s_sqrt_s"])
+                    rrw_rad_s_sqrt_s=sc.config["gyro"]["rrw_rad_s_sqrt_s"],
+                    exposure_s=sc.exposure_s)
     frames: list[dict[str, Any]] = []
     for ev in sc.events():
         if ev.kind == "gyro":

@@ -49,7 +49,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from starid import rotations as rot
-from starid.attitude import refine_streaked, streak_vectors, wahba_unit
+from starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
 from starid.calibrate import fit_camera
 from starid.camera import Camera
 from starid.index import PatternIndex
@@ -70,6 +70,7 @@ from starid.verify import (
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
+_3_SQRT2 = 3.0 * math.sqrt(2.0)
 _CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
 
@@ -376,18 +377,6 @@ class Solver:
                        f"{int(np.flatnonzero(bad)[0])}"
         use = xy[: self.max_detections]
         xs = np.sort(use[:, 0])
-        with np.errstate(over="ignore"):  # absurd sizes are reported below
-            gap = float(np.min(xs[1:] - xs[:-1])) if len(xs) > 1 else np.inf
-        if gap < 1e-6:
-            # some x coincide: look for pairs closer than 1e-6 px in both coordinates
-            with np.errstate(over="ignore", invalid="ignore"):  # absurd sizes: below
-                diff = use[:, None, :] - use[None, :, :]
-                d2 = np.einsum("ijk,ijk->ij", diff, diff)
-            d2.flat[:: len(use) + 1] = np.inf
-            if d2.min() < 1e-12:
-                dup = np.argwhere(d2 < 1e-12)
-                return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
-                           f"{int(dup[0, 1])}"
         slack = 0.5 * max(self.camera.width, self.camera.height)
         lo_x, hi_x = float(xs[0]), float(xs[-1])
         lo_y, hi_y = float(use[:, 1].min()), float(use[:, 1].max())
@@ -396,6 +385,17 @@ class Solver:
             outside = ~self.camera.in_frame(use, margin=-slack)
             return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies far " \
                        "outside the frame"
+        # (inside the frame no difference overflows: no errstate needed on this hot path)
+        gap = float(np.min(xs[1:] - xs[:-1])) if len(xs) > 1 else np.inf
+        if gap < 1e-6:
+            # some x coincide: look for pairs closer than 1e-6 px in both coordinates
+            diff = use[:, None, :] - use[None, :, :]
+            d2 = np.einsum("ijk,ijk->ij", diff, diff)
+            d2.flat[:: len(use) + 1] = np.inf
+            if d2.min() < 1e-12:
+                dup = np.argwhere(d2 < 1e-12)
+                return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
+                           f"{int(dup[0, 1])}"
         return use, ""
 
     def _focal_scales(self) -> list[float]:
@@ -564,8 +564,9 @@ class Solver:
                             mode="tracking")
         j = d2.argmin(axis=1)  # the nearest detection (inside the gate where hit)
         # alternative pairings inside the wide gates (1 each when the prior is tight)
-        n_hyp = 2.0 ** int((n_within >= 2).sum())
-        if wide <= 2.5 * tight:
+        n_hyp = 2.0 ** int(np.count_nonzero(n_within >= 2))
+        tight_prior = wide <= 2.5 * tight
+        if tight_prior:
             # a tight prior (the steady state of a running filter): the gates are nearly
             # the match radius, so the nearest pairs are the answer — one fit, no rounds
             p_sel = np.flatnonzero(hit)
@@ -599,20 +600,25 @@ class Solver:
         if len(det_i) < 2:
             return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
                             mode="tracking")
+        sigma = self.centroid_sigma_px * pix_rad
         try:
-            w = wahba_unit(b_use, self.vectors[cat_i], self.centroid_sigma_px * pix_rad)
+            # near a tight prior Gauss–Newton steps reach Wahba's optimum for less than
+            # the SVD (the steady state of a filter loop)
+            w = wahba_near(q0, b_use, self.vectors[cat_i], sigma) if tight_prior \
+                else wahba_unit(b_use, self.vectors[cat_i], sigma)
             # pairs the fit cannot place within the match radius (a noise blob or a
-            # streak's piece nearer the prediction than the star) leave; one refit
+            # streak's piece nearer the prediction than the star) leave; one refit,
+            # from this fit (its optimum is within a pixel or so)
             keep = w.residuals_rad <= tight * pix_rad
-            if not keep.all() and keep.sum() >= 2:
+            n_keep = int(np.count_nonzero(keep))
+            if 2 <= n_keep < len(keep):
                 det_i, cat_i, b_use = det_i[keep], cat_i[keep], b_use[keep]
-                w = wahba_unit(b_use, self.vectors[cat_i], self.centroid_sigma_px * pix_rad)
+                w = wahba_near(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma)
             whole = self.whole_streak_px * pix_rad
             if prior.smear_cam_rad is not None and _norm3(prior.smear_cam_rad) > whole:
                 v = streak_vectors(b_use, prior.smear_cam_rad)
                 if float(np.einsum("ij,ij->i", v, v).max()) > whole * whole:
-                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i],
-                                        self.centroid_sigma_px * pix_rad,
+                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma,
                                         prior.smear_cam_rad, whole)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
@@ -691,7 +697,7 @@ class Solver:
         return self._solution(cand, 1, "triad", [cand])
 
     def _match_radius_px(self) -> float:
-        return max(3.0 * np.sqrt(2.0) * self.centroid_sigma_px, 1.5)
+        return max(_3_SQRT2 * self.centroid_sigma_px, 1.5)
 
     def _p_hit(self, anchor: int, radius_rad: float) -> float:
         """Chance that a random detection falls within the match radius of a catalogue
