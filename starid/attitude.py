@@ -134,19 +134,9 @@ def wahba_near(q_cam_icrs: NDArray[np.float64], b: NDArray[np.float64],
         x = p00 * g0 + p01 * g1 + p02 * g2
         y = p10 * g0 + p11 * g1 + p12 * g2
         z = p20 * g0 + p21 * g1 + p22 * g2
-        a2 = x * x + y * y + z * z
-        # exp(d) ⊗ q in floats (d small: the half-angle series is exact to 1e-20 here)
-        c, k = 1.0 - a2 / 8.0, 0.5 - a2 / 48.0
-        if a2 > 1e-6:
-            a = math.sqrt(a2)
-            c, k = math.cos(0.5 * a), math.sin(0.5 * a) / a
-        x, y, z = k * x, k * y, k * z
-        qw, qx, qy, qz = (c * qw - x * qx - y * qy - z * qz, c * qx + x * qw + y * qz - z * qy,
-                          c * qy - x * qz + y * qw + z * qx, c * qz + x * qy - y * qx + z * qw)
-        if a2 < converged_rad * converged_rad:
+        qw, qx, qy, qz = _exp_times(x, y, z, qw, qx, qy, qz)
+        if x * x + y * y + z * z < converged_rad * converged_rad:
             break
-    n = 1.0 / math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-    qw, qx, qy, qz = qw * n, qx * n, qy * n, qz * n
     pred = r @ _matrix_t(qw, qx, qy, qz)
     pred -= b
     res = np.sqrt(np.einsum("ij,ij->i", pred, pred))
@@ -172,21 +162,9 @@ def _inverse_information(S: list[list[float]], w_sum: float,
     product of F's eigenvalues, each in [0, w_sum]: ``det ≤ 1e-12·tr³`` means the
     smallest is ≲ 1e-12 of the largest — collinear directions."""
     (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
-    f00, f11, f22 = w_sum - s00, w_sum - s11, w_sum - s22
-    f01, f02, f12 = -s01, -s02, -s12
-    c00 = f11 * f22 - f12 * f12
-    c01 = f02 * f12 - f01 * f22
-    c02 = f01 * f12 - f02 * f11
-    det = f00 * c00 + f01 * c01 + f02 * c02
-    tr = f00 + f11 + f22
-    if not det > 1e-12 * tr**3:
-        raise ValueError("matched directions are (nearly) collinear: attitude undetermined")
-    c11 = f00 * f22 - f02 * f02
-    c12 = f01 * f02 - f00 * f12
-    c22 = f00 * f11 - f01 * f01
-    k = 1.0 / (det * scale)
-    return [[c00 * k, c01 * k, c02 * k], [c01 * k, c11 * k, c12 * k],
-            [c02 * k, c12 * k, c22 * k]]
+    return _inverse_symmetric([[scale * (w_sum - s00), -scale * s01, -scale * s02],
+                               [-scale * s01, scale * (w_sum - s11), -scale * s12],
+                               [-scale * s02, -scale * s12, scale * (w_sum - s22)]])
 
 
 def refine_streaked(q_cam_icrs: ArrayLike, b: NDArray[np.float64], r: NDArray[np.float64],
@@ -287,18 +265,24 @@ def _inverse_symmetric(F: list[list[float]]) -> list[list[float]]:
 
 
 def _rotate_small(d: list[float], q: NDArray[np.float64]) -> NDArray[np.float64]:
-    """exp(d) ⊗ q for a rotation vector d (rad, the left frame), in floats."""
-    x, y, z = d
-    a = math.sqrt(x * x + y * y + z * z)
-    c = math.cos(0.5 * a)
-    s = 0.5 - a * a / 48.0 if a < 1e-4 else math.sin(0.5 * a) / a
-    pw, px, py, pz = c, s * x, s * y, s * z
-    qw, qx, qy, qz = q.tolist()
-    out = np.array([pw * qw - px * qx - py * qy - pz * qz,
-                    pw * qx + px * qw + py * qz - pz * qy,
-                    pw * qy - px * qz + py * qw + pz * qx,
-                    pw * qz + px * qy - py * qx + pz * qw])
-    return out / math.sqrt(float(out @ out))
+    """exp(d) ⊗ q for a rotation vector d (rad, the left frame)."""
+    return np.array(_exp_times(*d, *q.tolist()))
+
+
+def _exp_times(x: float, y: float, z: float, qw: float, qx: float, qy: float,
+               qz: float) -> tuple[float, float, float, float]:
+    """exp((x, y, z)) ⊗ q in plain floats, normalised (numpy's per-call overhead would
+    dominate at this size); small angles by the half-angle series."""
+    a2 = x * x + y * y + z * z
+    c, k = 1.0 - a2 / 8.0, 0.5 - a2 / 48.0  # exact to ~1e-20 below 1e-3 rad
+    if a2 > 1e-6:
+        a = math.sqrt(a2)
+        c, k = math.cos(0.5 * a), math.sin(0.5 * a) / a
+    x, y, z = k * x, k * y, k * z
+    w, u, v, t = (c * qw - x * qx - y * qy - z * qz, c * qx + x * qw + y * qz - z * qy,
+                  c * qy - x * qz + y * qw + z * qx, c * qz + x * qy - y * qx + z * qw)
+    n = 1.0 / math.sqrt(w * w + u * u + v * v + t * t)
+    return w * n, u * n, v * n, t * n
 
 
 def _any_tangent(b: NDArray[np.float64]) -> NDArray[np.float64]:
