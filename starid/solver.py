@@ -58,13 +58,17 @@ from starid.nstar import (
     WorkBudgetExceeded,
     chirality_of,
     closest_pair_first,
+    extend_indexed,
+    first_pair_indexed,
     match_faithful,
     match_indexed,
 )
 from starid.verify import (
     DENSITY_SAFETY,
     binomial_tail,
+    binomial_tail_many,
     expected_chance_patterns,
+    expected_chance_patterns_many,
     spot_geometry,
 )
 
@@ -430,6 +434,15 @@ class Solver:
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
         one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
         b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
+        # every pattern's pair angles come from one matrix per focal guess: cheaper than a
+        # product per pattern, and the same bits for a pair whichever pattern holds it
+        # (the head cache below relies on that)
+        ang_cams = []
+        for b_all in b_cams:
+            a = np.arccos(np.clip(b_all @ b_all.T, -1, 1))
+            np.fill_diagonal(a, 0.0)
+            ang_cams.append(a)
+        heads: dict[tuple[int, ...], NDArray[np.int64] | str] = {}
         tried = 0
         first_counter = None
         budget_note = ""
@@ -443,15 +456,12 @@ class Solver:
             for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
                 tried += 1
                 sel = np.array(pat_idx)
-                b = b_all[sel]
-                ang = np.arccos(np.clip(b @ b.T, -1, 1))
-                np.fill_diagonal(ang, 0.0)
-                order = closest_pair_first(ang)
-                sel, b, ang = sel[order], b[order], ang[np.ix_(order, order)]
+                sel = sel[closest_pair_first(ang_cams[ci][np.ix_(sel, sel)])]
+                b, ang = b_all[sel], ang_cams[ci][np.ix_(sel, sel)]
                 tol = self.tolerance_rad + rel_tol * ang
                 pattern = _pattern(ang, b, tol)
                 try:
-                    assignments = self._match(pattern)
+                    assignments = self._match_cached(pattern, sel, ci, heads)
                 except WorkBudgetExceeded as e:
                     budget_note = f"work budget exceeded ({e})"
                     continue
@@ -462,8 +472,8 @@ class Solver:
                 chance = _Chance(ang, np.broadcast_to(tol, ang.shape), tried,
                                  pattern.chirality != 0)
                 cands: list[Candidate] = []
-                for a in assignments:
-                    quick = self._quick_check(b_all, sel, a, cam, chance)
+                quicks = self._quick_checks(b_all, sel, assignments, cam, chance)
+                for a, quick in zip(assignments, quicks, strict=True):
                     if quick is None:
                         continue
                     if quick[0] <= self.p_false_max:
@@ -703,6 +713,53 @@ class Solver:
                                      self._p_hit(int(assign[0]), radius))
         return min(1.0, p), R, e_trials, det_i, cat_i
 
+    def _quick_checks(self, b_all: NDArray, sel: NDArray, assigns: NDArray, cam: Camera,
+                      chance: _Chance,
+                      ) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
+        """:meth:`_quick_check` for every assignment (K, n) of one pattern at once.
+
+        Same results, candidate by candidate: the rotations come from one batched SVD,
+        the K rotated detection sets from one KD-tree query, and the one-to-one
+        association, pattern check and p_false are vectorised over K. A pattern of three
+        stars has a handful of chance assignments, and checking them one by one cost
+        ~0.25 ms each in per-call overhead — most of a Not-Modus trial's time."""
+        assigns = np.asarray(assigns, dtype=np.int64)
+        n_k = len(assigns)
+        n_det = len(b_all)
+        out: list[tuple[float, NDArray, float, NDArray, NDArray] | None] = [None] * n_k
+        bs = b_all[sel]
+        vc = self.vectors[assigns]  # (K, n, 3)
+        u, sv, vt = np.linalg.svd(bs.T @ vc)
+        # as _rotation_from_pairs: collinear → no rotation; a reflection is flipped
+        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
+        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
+        u[flip, :, 2] = -u[flip, :, 2]
+        R = u @ vt
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
+                                distance_upper_bound=2 * np.sin(radius / 2))
+        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
+        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
+        for k in range(n_k):
+            lookup[k, det_k[k]] = cat_k[k]
+        keeps = proper & np.all(lookup[:, sel] == assigns, axis=1)
+        if not keeps.any():
+            return out
+        kk = np.flatnonzero(keeps)
+        vck = vc[kk]
+        resid = np.abs(chance.angles - np.arccos(np.clip(vck @ vck.transpose(0, 2, 1),
+                                                         -1.0, 1.0)))
+        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
+        tol_fit = np.minimum(np.maximum(resid, floor), chance.tol)
+        e_trials = chance.trials * expected_chance_patterns_many(
+            chance.angles, tol_fit, len(self.vectors), chance.mirror_checked, chance.geometry)
+        k_other = np.array([len(det_k[k]) for k in kk]) - len(sel)
+        p_hit = np.array([self._p_hit(int(assigns[k, 0]), radius) for k in kk])
+        p = e_trials * binomial_tail_many(k_other, n_det - len(sel), p_hit)
+        for r, k in enumerate(kk):
+            out[k] = (min(1.0, float(p[r])), R[k], float(e_trials[r]), det_k[k], cat_k[k])
+        return out
+
     def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
                 quick: tuple[float, NDArray, float, NDArray, NDArray],
                 b_all: NDArray | None = None) -> Candidate | None:
@@ -749,6 +806,36 @@ class Solver:
             covariance=final.covariance * _variance_factor(final),
             _projector=self._project,
         )
+
+    def _match_cached(self, pattern: Pattern, sel: NDArray, ci: int,
+                      heads: dict[tuple[int, ...], NDArray[np.int64] | str],
+                      ) -> NDArray[np.int64]:
+        """:meth:`_match`, keeping the partial assignments of each pattern head (its first
+        three stars, in matching order) for the rest of the solve.
+
+        Not-Modus and the combinations try many patterns that start with the same three
+        detections, and those three levels hold nearly all of the matcher's work (the
+        window of the first pair holds ~10³ catalogue pairs; the third star cuts them to
+        a handful). A head's partials depend only on its own pair windows — functions of
+        the detections and the focal guess ``ci`` — and on the mirror check's verdict, so
+        the key ``(ci, s0, s1, s2, chirality)`` determines them and the extension returns
+        exactly what :func:`match_indexed` would. A head over the work budget is
+        remembered as such and raises again."""
+        if self.faithful or self.n_bands > 1 or pattern.n < 3:
+            return self._match(pattern)
+        key = (ci, int(sel[0]), int(sel[1]), int(sel[2]), pattern.chirality)
+        head = heads.get(key)
+        if head is None:
+            try:
+                head = extend_indexed(self.index, pattern,
+                                      first_pair_indexed(self.index, pattern),
+                                      self.work_budget, upto=3)
+            except WorkBudgetExceeded as e:
+                head = str(e)
+            heads[key] = head
+        if isinstance(head, str):
+            raise WorkBudgetExceeded(head)
+        return extend_indexed(self.index, pattern, head, self.work_budget)
 
     def _match(self, pattern: Pattern) -> NDArray[np.int64]:
         if self.faithful:
@@ -880,6 +967,28 @@ def _one_to_one(d: NDArray, j: NDArray) -> tuple[NDArray[np.int64], NDArray[np.i
     _, first = np.unique(j[det], return_index=True)
     det = np.sort(det[first])
     return det.astype(np.int64), j[det].astype(np.int64)
+
+
+def _one_to_one_many(d: NDArray, j: NDArray,
+                     ) -> tuple[list[NDArray[np.int64]], list[NDArray[np.int64]]]:
+    """:func:`_one_to_one` for K queries at once (``d``, ``j`` (K, N)): per query, the
+    detections with a match and their targets, each target kept by its closest detection
+    (ties to the lower index) — one sort for all K instead of K small ones."""
+    n_k, n = d.shape
+    flat = np.flatnonzero(np.isfinite(d))
+    q, det = np.divmod(flat, n)
+    dist, tgt = d.ravel()[flat], j.ravel()[flat]
+    # within a (query, target) group: closest first, then the lower detection index
+    o = np.lexsort((det, dist, tgt, q))
+    q, det, tgt = q[o], det[o], tgt[o]
+    first = np.ones(len(o), dtype=bool)
+    first[1:] = (q[1:] != q[:-1]) | (tgt[1:] != tgt[:-1])
+    q, det, tgt = q[first], det[first], tgt[first]
+    o = np.lexsort((det, q))
+    q, det, tgt = q[o], det[o].astype(np.int64), tgt[o].astype(np.int64)
+    cuts = np.searchsorted(q, np.arange(n_k + 1))
+    return ([det[cuts[k]:cuts[k + 1]] for k in range(n_k)],
+            [tgt[cuts[k]:cuts[k + 1]] for k in range(n_k)])
 
 
 def _keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,
