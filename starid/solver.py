@@ -434,43 +434,46 @@ class Solver:
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
         one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
         b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
-        # every pattern's pair angles come from one matrix per focal guess: cheaper than a
-        # product per pattern, and the same bits for a pair whichever pattern holds it
-        # (the head cache below relies on that)
-        ang_cams = []
-        for b_all in b_cams:
-            a = np.arccos(np.clip(b_all @ b_all.T, -1, 1))
-            np.fill_diagonal(a, 0.0)
-            ang_cams.append(a)
-        heads: dict[tuple[int, ...], NDArray[np.int64] | str] = {}
+        rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
+        # every pattern's pair windows come from one table per focal guess: cheaper than
+        # building them per pattern, and the same bits for a pair whichever pattern holds
+        # it (the prefix cache of _match_cached relies on that)
+        tables = [_PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
+        prefixes: dict[tuple[int, ...], NDArray[np.int64] | str] = {}
         tried = 0
         first_counter = None
         budget_note = ""
         weak: list[tuple] = []  # (p_false, sel, assign, quick result, path, camera index)
-        rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
         budget = self.max_patterns * len(cams)
+        # detection sets (bit masks) that matched nothing, per focal guess: a pattern
+        # holding one of them matches nothing either (every window of the smaller set is
+        # one of its own), so it is counted as tried but not matched — the swaps and
+        # 4-star combinations after a failed Not-Modus are mostly such supersets
+        no_match: list[list[int]] = [[] for _ in cams]
         for pat_idx, path in self._patterns(len(xy)):
             if tried >= budget:
                 budget_note = f"{tried} pattern trials (the budget)"
                 break
+            mask = sum(1 << i for i in pat_idx)
             for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
                 tried += 1
+                if any(e & mask == e for e in no_match[ci]):
+                    continue
                 sel = np.array(pat_idx)
-                sel = sel[closest_pair_first(ang_cams[ci][np.ix_(sel, sel)])]
-                b, ang = b_all[sel], ang_cams[ci][np.ix_(sel, sel)]
-                tol = self.tolerance_rad + rel_tol * ang
-                pattern = _pattern(ang, b, tol)
+                sel = sel[closest_pair_first(tables[ci].angles[sel[:, None], sel])]
+                pattern, tol = tables[ci].pattern(sel, b_all)
+                ang = pattern.angles
                 try:
-                    assignments = self._match_cached(pattern, sel, ci, heads)
+                    assignments = self._match_cached(pattern, sel, ci, prefixes)
                 except WorkBudgetExceeded as e:
                     budget_note = f"work budget exceeded ({e})"
                     continue
                 if first_counter is None:
                     first_counter = len(assignments)
                 if len(assignments) == 0:
+                    no_match[ci].append(mask)
                     continue
-                chance = _Chance(ang, np.broadcast_to(tol, ang.shape), tried,
-                                 pattern.chirality != 0)
+                chance = _Chance(ang, tol, tried, pattern.chirality != 0)
                 cands: list[Candidate] = []
                 quicks = self._quick_checks(b_all, sel, assignments, cam, chance)
                 for a, quick in zip(assignments, quicks, strict=True):
@@ -808,34 +811,47 @@ class Solver:
         )
 
     def _match_cached(self, pattern: Pattern, sel: NDArray, ci: int,
-                      heads: dict[tuple[int, ...], NDArray[np.int64] | str],
+                      prefixes: dict[tuple[int, ...], NDArray[np.int64] | str],
                       ) -> NDArray[np.int64]:
-        """:meth:`_match`, keeping the partial assignments of each pattern head (its first
-        three stars, in matching order) for the rest of the solve.
+        """:meth:`_match`, keeping the partial assignments of every pattern prefix (its
+        first m ≥ 3 stars, in matching order) for the rest of the solve.
 
-        Not-Modus and the combinations try many patterns that start with the same three
-        detections, and those three levels hold nearly all of the matcher's work (the
+        Not-Modus and the combinations try many patterns that start with the same
+        detections, and the first three levels hold nearly all of the matcher's work (the
         window of the first pair holds ~10³ catalogue pairs; the third star cuts them to
-        a handful). A head's partials depend only on its own pair windows — functions of
-        the detections and the focal guess ``ci`` — and on the mirror check's verdict, so
-        the key ``(ci, s0, s1, s2, chirality)`` determines them and the extension returns
-        exactly what :func:`match_indexed` would. A head over the work budget is
-        remembered as such and raises again."""
+        a handful). The partials of a prefix depend only on its own pair windows —
+        functions of the detections and the focal guess ``ci`` — and on the mirror
+        check's verdict, so ``(ci, chirality, s0, …, s(m−1))`` determines them: a
+        pattern continues from its longest known prefix, and gets exactly what
+        :func:`match_indexed` would (same rows, same order). An empty prefix ends every
+        pattern that starts with it at once. A head over the work budget is remembered
+        as such and raises again."""
         if self.faithful or self.n_bands > 1 or pattern.n < 3:
             return self._match(pattern)
-        key = (ci, int(sel[0]), int(sel[1]), int(sel[2]), pattern.chirality)
-        head = heads.get(key)
-        if head is None:
+        n = pattern.n
+        key = (ci, pattern.chirality, *sel.tolist())
+        m = n
+        part = prefixes.get(key)
+        while part is None and m > 3:
+            m -= 1
+            part = prefixes.get(key[: 2 + m])
+        if part is None:  # a new head: the first pair's window, then the third star
             try:
-                head = extend_indexed(self.index, pattern,
+                part = extend_indexed(self.index, pattern,
                                       first_pair_indexed(self.index, pattern),
                                       self.work_budget, upto=3)
             except WorkBudgetExceeded as e:
-                head = str(e)
-            heads[key] = head
-        if isinstance(head, str):
-            raise WorkBudgetExceeded(head)
-        return extend_indexed(self.index, pattern, head, self.work_budget)
+                part = str(e)
+            prefixes[key[:5]] = part
+        if isinstance(part, str):
+            raise WorkBudgetExceeded(part)
+        while m < n:
+            if len(part) == 0:
+                break
+            m += 1
+            part = extend_indexed(self.index, pattern, part, self.work_budget, upto=m)
+            prefixes[key[: 2 + m]] = part
+        return part if len(part) else np.zeros((0, n), dtype=np.int64)
 
     def _match(self, pattern: Pattern) -> NDArray[np.int64]:
         if self.faithful:
@@ -913,6 +929,36 @@ def _pattern(ang: NDArray, b: NDArray, tol: NDArray) -> Pattern:
     hi = np.minimum(ang + t, np.pi)
     chir = chirality_of(b, 2.0 * float(np.max(t))) if n >= 3 else 0
     return Pattern(ang, np.cos(hi), np.cos(lo), chir, float(hi.max()))
+
+
+@dataclass(frozen=True)
+class _PairWindows:
+    """The matching windows of every detection pair at one focal guess: a pattern's are a
+    sub-matrix (the same values :func:`_pattern` computes, without per-pattern work)."""
+
+    angles: NDArray[np.float64]  # (N, N) pair angles, 0 on the diagonal
+    tol: NDArray[np.float64]  # (N, N) window half-widths
+    hi: NDArray[np.float64]  # (N, N) upper window edges (angles)
+    cos_min: NDArray[np.float64]
+    cos_max: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, b_all: NDArray, tolerance_rad: float, rel_tol: float) -> _PairWindows:
+        ang = np.arccos(np.clip(b_all @ b_all.T, -1, 1))
+        np.fill_diagonal(ang, 0.0)
+        tol = tolerance_rad + rel_tol * ang
+        lo = np.maximum(ang - tol, 0.0)
+        hi = np.minimum(ang + tol, np.pi)
+        return cls(ang, tol, hi, np.cos(hi), np.cos(lo))
+
+    def pattern(self, sel: NDArray, b_all: NDArray) -> tuple[Pattern, NDArray[np.float64]]:
+        """The :class:`Pattern` of detections ``sel`` (in matching order) and its windows'
+        half-widths."""
+        ix = (sel[:, None], sel)
+        tol = self.tol[ix]
+        chir = chirality_of(b_all[sel], 2.0 * float(tol.max())) if len(sel) >= 3 else 0
+        return Pattern(self.angles[ix], self.cos_min[ix], self.cos_max[ix], chir,
+                       float(self.hi[ix].max())), tol
 
 
 @dataclass(frozen=True)

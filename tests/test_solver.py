@@ -113,6 +113,35 @@ def test_kept_pattern_heads_change_no_result(solver, cat, cam, monkeypatch):
         assert a.p_false == b.p_false
 
 
+def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
+        solver, cat, cam, monkeypatch):
+    """After a failed Not-Modus, a pattern holding detections that already matched
+    nothing is skipped (it cannot match), yet counted in ``patterns_tried``."""
+    calls: list[tuple[frozenset, int]] = []
+    real = type(solver)._match_cached
+
+    def spy(self, pattern, sel, ci, prefixes):
+        out = real(self, pattern, sel, ci, prefixes)
+        calls.append((frozenset(sel.tolist()), len(out)))
+        return out
+
+    monkeypatch.setattr(type(solver), "_match_cached", spy)
+    rng = np.random.default_rng(12)
+    skipped = 0
+    for _ in range(6):
+        calls.clear()
+        xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (14, 2))
+        sol = solver.solve(xy)
+        assert not sol.ok
+        empty: list[frozenset] = []
+        for s, n in calls:
+            assert not any(e <= s for e in empty)  # never matched again
+            if n == 0:
+                empty.append(s)
+        skipped += sol.patterns_tried - len(calls)
+    assert skipped > 0
+
+
 def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
     """Every chance assignment of 3-star patterns on a frame with false stars: the batched
     check gives each candidate's result exactly (rejections included)."""
