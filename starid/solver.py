@@ -58,13 +58,17 @@ from starid.nstar import (
     WorkBudgetExceeded,
     chirality_of,
     closest_pair_first,
+    extend_indexed,
+    first_pair_indexed,
     match_faithful,
     match_indexed,
 )
 from starid.verify import (
     DENSITY_SAFETY,
     binomial_tail,
+    binomial_tail_many,
     expected_chance_patterns,
+    expected_chance_patterns_many,
     spot_geometry,
 )
 
@@ -456,40 +460,49 @@ class Solver:
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
         one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
         b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
+        rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
+        # every pattern's pair windows come from one table per focal guess: cheaper than
+        # building them per pattern, and the same bits for a pair whichever pattern holds
+        # it (the prefix cache of _match_cached relies on that)
+        tables = [_PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
+        prefixes: dict[tuple[int, ...], NDArray[np.int64] | str] = {}
         tried = 0
         first_counter = None
         budget_note = ""
         weak: list[tuple] = []  # (p_false, sel, assign, quick result, path, camera index)
-        rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
         budget = self.max_patterns * len(cams)
+        # detection sets (bit masks) that matched nothing, per focal guess: a pattern
+        # holding one of them matches nothing either (every window of the smaller set is
+        # one of its own), so it is counted as tried but not matched — the swaps and
+        # 4-star combinations after a failed Not-Modus are mostly such supersets
+        no_match: list[list[int]] = [[] for _ in cams]
         for pat_idx, path in self._patterns(len(xy)):
             if tried >= budget:
                 budget_note = f"{tried} pattern trials (the budget)"
                 break
+            mask = sum(1 << i for i in pat_idx)
             for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
                 tried += 1
+                if any(e & mask == e for e in no_match[ci]):
+                    continue
                 sel = np.array(pat_idx)
-                b = b_all[sel]
-                ang = np.arccos(np.clip(b @ b.T, -1, 1))
-                np.fill_diagonal(ang, 0.0)
-                order = closest_pair_first(ang)
-                sel, b, ang = sel[order], b[order], ang[np.ix_(order, order)]
-                tol = self.tolerance_rad + rel_tol * ang
-                pattern = _pattern(ang, b, tol)
+                sel = sel[closest_pair_first(tables[ci].angles[sel[:, None], sel])]
+                pattern, tol = tables[ci].pattern(sel, b_all)
+                ang = pattern.angles
                 try:
-                    assignments = self._match(pattern)
+                    assignments = self._match_cached(pattern, sel, ci, prefixes)
                 except WorkBudgetExceeded as e:
                     budget_note = f"work budget exceeded ({e})"
                     continue
                 if first_counter is None:
                     first_counter = len(assignments)
                 if len(assignments) == 0:
+                    no_match[ci].append(mask)
                     continue
-                chance = _Chance(ang, np.broadcast_to(tol, ang.shape), tried,
-                                 pattern.chirality != 0)
+                chance = _Chance(ang, tol, tried, pattern.chirality != 0)
                 cands: list[Candidate] = []
-                for a in assignments:
-                    quick = self._quick_check(b_all, sel, a, cam, chance)
+                quicks = self._quick_checks(b_all, sel, assignments, cam, chance)
+                for a, quick in zip(assignments, quicks, strict=True):
                     if quick is None:
                         continue
                     if quick[0] <= self.p_false_max:
@@ -742,6 +755,53 @@ class Solver:
                                      self._p_hit(int(assign[0]), radius))
         return min(1.0, p), R, e_trials, det_i, cat_i
 
+    def _quick_checks(self, b_all: NDArray, sel: NDArray, assigns: NDArray, cam: Camera,
+                      chance: _Chance,
+                      ) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
+        """:meth:`_quick_check` for every assignment (K, n) of one pattern at once.
+
+        Same results, candidate by candidate: the rotations come from one batched SVD,
+        the K rotated detection sets from one KD-tree query, and the one-to-one
+        association, pattern check and p_false are vectorised over K. A pattern of three
+        stars has a handful of chance assignments, and checking them one by one cost
+        ~0.25 ms each in per-call overhead — most of a Not-Modus trial's time."""
+        assigns = np.asarray(assigns, dtype=np.int64)
+        n_k = len(assigns)
+        n_det = len(b_all)
+        out: list[tuple[float, NDArray, float, NDArray, NDArray] | None] = [None] * n_k
+        bs = b_all[sel]
+        vc = self.vectors[assigns]  # (K, n, 3)
+        u, sv, vt = np.linalg.svd(bs.T @ vc)
+        # as _rotation_from_pairs: collinear → no rotation; a reflection is flipped
+        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
+        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
+        u[flip, :, 2] = -u[flip, :, 2]
+        R = u @ vt
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
+                                distance_upper_bound=2 * np.sin(radius / 2))
+        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
+        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
+        for k in range(n_k):
+            lookup[k, det_k[k]] = cat_k[k]
+        keeps = proper & np.all(lookup[:, sel] == assigns, axis=1)
+        if not keeps.any():
+            return out
+        kk = np.flatnonzero(keeps)
+        vck = vc[kk]
+        resid = np.abs(chance.angles - np.arccos(np.clip(vck @ vck.transpose(0, 2, 1),
+                                                         -1.0, 1.0)))
+        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
+        tol_fit = np.minimum(np.maximum(resid, floor), chance.tol)
+        e_trials = chance.trials * expected_chance_patterns_many(
+            chance.angles, tol_fit, len(self.vectors), chance.mirror_checked, chance.geometry)
+        k_other = np.array([len(det_k[k]) for k in kk]) - len(sel)
+        p_hit = np.array([self._p_hit(int(assigns[k, 0]), radius) for k in kk])
+        p = e_trials * binomial_tail_many(k_other, n_det - len(sel), p_hit)
+        for r, k in enumerate(kk):
+            out[k] = (min(1.0, float(p[r])), R[k], float(e_trials[r]), det_k[k], cat_k[k])
+        return out
+
     def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
                 quick: tuple[float, NDArray, float, NDArray, NDArray],
                 b_all: NDArray | None = None) -> Candidate | None:
@@ -788,6 +848,49 @@ class Solver:
             covariance=final.covariance * _variance_factor(final),
             _projector=self._project,
         )
+
+    def _match_cached(self, pattern: Pattern, sel: NDArray, ci: int,
+                      prefixes: dict[tuple[int, ...], NDArray[np.int64] | str],
+                      ) -> NDArray[np.int64]:
+        """:meth:`_match`, keeping the partial assignments of every pattern prefix (its
+        first m ≥ 3 stars, in matching order) for the rest of the solve.
+
+        Not-Modus and the combinations try many patterns that start with the same
+        detections, and the first three levels hold nearly all of the matcher's work (the
+        window of the first pair holds ~10³ catalogue pairs; the third star cuts them to
+        a handful). The partials of a prefix depend only on its own pair windows —
+        functions of the detections and the focal guess ``ci`` — and on the mirror
+        check's verdict, so ``(ci, chirality, s0, …, s(m−1))`` determines them: a
+        pattern continues from its longest known prefix, and gets exactly what
+        :func:`match_indexed` would (same rows, same order). An empty prefix ends every
+        pattern that starts with it at once. A head over the work budget is remembered
+        as such and raises again."""
+        if self.faithful or self.n_bands > 1 or pattern.n < 3:
+            return self._match(pattern)
+        n = pattern.n
+        key = (ci, pattern.chirality, *sel.tolist())
+        m = n
+        part = prefixes.get(key)
+        while part is None and m > 3:
+            m -= 1
+            part = prefixes.get(key[: 2 + m])
+        if part is None:  # a new head: the first pair's window, then the third star
+            try:
+                part = extend_indexed(self.index, pattern,
+                                      first_pair_indexed(self.index, pattern),
+                                      self.work_budget, upto=3)
+            except WorkBudgetExceeded as e:
+                part = str(e)
+            prefixes[key[:5]] = part
+        if isinstance(part, str):
+            raise WorkBudgetExceeded(part)
+        while m < n:
+            if len(part) == 0:
+                break
+            m += 1
+            part = extend_indexed(self.index, pattern, part, self.work_budget, upto=m)
+            prefixes[key[: 2 + m]] = part
+        return part if len(part) else np.zeros((0, n), dtype=np.int64)
 
     def _match(self, pattern: Pattern) -> NDArray[np.int64]:
         if self.faithful:
@@ -868,6 +971,36 @@ def _pattern(ang: NDArray, b: NDArray, tol: NDArray) -> Pattern:
 
 
 @dataclass(frozen=True)
+class _PairWindows:
+    """The matching windows of every detection pair at one focal guess: a pattern's are a
+    sub-matrix (the same values :func:`_pattern` computes, without per-pattern work)."""
+
+    angles: NDArray[np.float64]  # (N, N) pair angles, 0 on the diagonal
+    tol: NDArray[np.float64]  # (N, N) window half-widths
+    hi: NDArray[np.float64]  # (N, N) upper window edges (angles)
+    cos_min: NDArray[np.float64]
+    cos_max: NDArray[np.float64]
+
+    @classmethod
+    def of(cls, b_all: NDArray, tolerance_rad: float, rel_tol: float) -> _PairWindows:
+        ang = np.arccos(np.clip(b_all @ b_all.T, -1, 1))
+        np.fill_diagonal(ang, 0.0)
+        tol = tolerance_rad + rel_tol * ang
+        lo = np.maximum(ang - tol, 0.0)
+        hi = np.minimum(ang + tol, np.pi)
+        return cls(ang, tol, hi, np.cos(hi), np.cos(lo))
+
+    def pattern(self, sel: NDArray, b_all: NDArray) -> tuple[Pattern, NDArray[np.float64]]:
+        """The :class:`Pattern` of detections ``sel`` (in matching order) and its windows'
+        half-widths."""
+        ix = (sel[:, None], sel)
+        tol = self.tol[ix]
+        chir = chirality_of(b_all[sel], 2.0 * float(tol.max())) if len(sel) >= 3 else 0
+        return Pattern(self.angles[ix], self.cos_min[ix], self.cos_max[ix], chir,
+                       float(self.hi[ix].max())), tol
+
+
+@dataclass(frozen=True)
 class _Chance:
     """What the chance-match estimate needs about the pattern being tried."""
 
@@ -924,6 +1057,28 @@ def _one_to_one(d: NDArray, j: NDArray) -> tuple[NDArray[np.int64], NDArray[np.i
     _, first = np.unique(j[det], return_index=True)
     det = np.sort(det[first])
     return det.astype(np.int64), j[det].astype(np.int64)
+
+
+def _one_to_one_many(d: NDArray, j: NDArray,
+                     ) -> tuple[list[NDArray[np.int64]], list[NDArray[np.int64]]]:
+    """:func:`_one_to_one` for K queries at once (``d``, ``j`` (K, N)): per query, the
+    detections with a match and their targets, each target kept by its closest detection
+    (ties to the lower index) — one sort for all K instead of K small ones."""
+    n_k, n = d.shape
+    flat = np.flatnonzero(np.isfinite(d))
+    q, det = np.divmod(flat, n)
+    dist, tgt = d.ravel()[flat], j.ravel()[flat]
+    # within a (query, target) group: closest first, then the lower detection index
+    o = np.lexsort((det, dist, tgt, q))
+    q, det, tgt = q[o], det[o], tgt[o]
+    first = np.ones(len(o), dtype=bool)
+    first[1:] = (q[1:] != q[:-1]) | (tgt[1:] != tgt[:-1])
+    q, det, tgt = q[first], det[first], tgt[first]
+    o = np.lexsort((det, q))
+    q, det, tgt = q[o], det[o].astype(np.int64), tgt[o].astype(np.int64)
+    cuts = np.searchsorted(q, np.arange(n_k + 1))
+    return ([det[cuts[k]:cuts[k + 1]] for k in range(n_k)],
+            [tgt[cuts[k]:cuts[k + 1]] for k in range(n_k)])
 
 
 def _keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,

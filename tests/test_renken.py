@@ -13,7 +13,14 @@ from hypothesis import strategies as st
 import starid
 from starid import rotations as rot
 from starid.index import PatternIndex
-from starid.nstar import Pattern, closest_pair_first, match_faithful, match_indexed
+from starid.nstar import (
+    Pattern,
+    closest_pair_first,
+    extend_indexed,
+    first_pair_indexed,
+    match_faithful,
+    match_indexed,
+)
 from starid.renken import affine_attitude, affine_coefficients, eq_8_1_attitudes, linear_pattern
 from starid.view import stars_in_view
 
@@ -123,6 +130,36 @@ def test_ac14_every_match_satisfies_every_window(small_sky):
         c = v[a] @ v[a].T
         iu = np.triu_indices(4, 1)
         assert np.all((c[iu] > pat.cos_min[iu]) & (c[iu] < pat.cos_max[iu]))
+
+
+@given(seed=st.integers(0, 10**6), n=st.integers(3, 6), tol_deg=st.floats(0.05, 2.5))
+@settings(max_examples=40)
+def test_extending_a_kept_pattern_head_gives_what_match_indexed_gives(small_sky, seed, n,
+                                                                      tol_deg):
+    """The solver keeps the partials of a pattern's first three stars and extends them
+    for every pattern sharing that head: same rows, in the same order, as one call."""
+    v, idx = small_sky
+    rng = np.random.default_rng(seed)
+    centre = v[rng.integers(len(v))]
+    near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
+    if len(near) < n:
+        return
+    sel = rng.choice(near, n, replace=False)
+    b = v[sel] + rng.normal(scale=np.radians(tol_deg) / 4, size=(n, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    pat = Pattern.from_vectors(b, np.radians(tol_deg))
+    whole = match_indexed(idx, pat, max_partials=10**7)
+    head = extend_indexed(idx, pat, first_pair_indexed(idx, pat), 10**7, upto=3)
+    assert head.shape[1] == 3
+    np.testing.assert_array_equal(extend_indexed(idx, pat, head, 10**7), whole)
+    assert whole.shape == (len(whole), n)
+
+
+def test_closest_pair_ties_go_to_the_first_pair_in_row_major_order():
+    ang = np.array([[0, 2, 1, 1], [2, 0, 1, 3], [1, 1, 0, 1], [1, 3, 1, 0.0]])
+    assert closest_pair_first(ang).tolist() == [0, 2, 1, 3]
+    ang[1, 2] = ang[2, 1] = 0.5
+    assert closest_pair_first(ang).tolist() == [1, 2, 0, 3]
 
 
 # --- AC-15: mirror images -----------------------------------------------------------------

@@ -96,6 +96,109 @@ def test_not_modus_recovers_when_a_bright_false_star_spoils_the_pattern(solver, 
     assert all(d != 2 for d, _ in sol.matches)
 
 
+def test_kept_pattern_heads_change_no_result(solver, cat, cam, monkeypatch):
+    """The head cache of the Not-Modus search is a pure speed-up: with every pattern
+    matched afresh the solutions are the same — path, trials, matches and p_false."""
+    rng = np.random.default_rng(31)
+    frames = [sky_frame(cat, cam, rng, n_false=8)[0] for _ in range(12)]
+    frames += [rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2))]
+    cached = [solver.solve(xy) for xy in frames]
+    assert sum(s.patterns_tried for s in cached) > 3 * len(frames)  # the search ran
+    monkeypatch.setattr(type(solver), "_match_cached",
+                        lambda self, pattern, sel, ci, heads: self._match(pattern))
+    for xy, a in zip(frames, cached, strict=True):
+        b = solver.solve(xy)
+        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches) \
+            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches)
+        assert a.p_false == b.p_false
+
+
+def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
+        solver, cat, cam, monkeypatch):
+    """After a failed Not-Modus, a pattern holding detections that already matched
+    nothing is skipped (it cannot match), yet counted in ``patterns_tried``."""
+    calls: list[tuple[frozenset, int]] = []
+    real = type(solver)._match_cached
+
+    def spy(self, pattern, sel, ci, prefixes):
+        out = real(self, pattern, sel, ci, prefixes)
+        calls.append((frozenset(sel.tolist()), len(out)))
+        return out
+
+    monkeypatch.setattr(type(solver), "_match_cached", spy)
+    rng = np.random.default_rng(12)
+    skipped = 0
+    for _ in range(6):
+        calls.clear()
+        xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (14, 2))
+        sol = solver.solve(xy)
+        assert not sol.ok
+        empty: list[frozenset] = []
+        for s, n in calls:
+            assert not any(e <= s for e in empty)  # never matched again
+            if n == 0:
+                empty.append(s)
+        skipped += sol.patterns_tried - len(calls)
+    assert skipped > 0
+
+
+def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
+    """Every chance assignment of 3-star patterns on a frame with false stars: the batched
+    check gives each candidate's result exactly (rejections included)."""
+    from starid.nstar import closest_pair_first
+    from starid.solver import _Chance, _pattern
+
+    rng = np.random.default_rng(5)
+    xy, _ = sky_frame(cat, cam, rng, n_false=8)
+    b_all = cam.pixels_to_vectors(xy[:30])
+    seen = rejected = 0
+    for trio in [(0, 1, 2), (0, 3, 5), (1, 4, 7), (2, 6, 9), (3, 8, 10), (5, 7, 11)]:
+        sel = np.array(trio)
+        ang = np.arccos(np.clip(b_all[sel] @ b_all[sel].T, -1, 1))
+        np.fill_diagonal(ang, 0.0)
+        o = closest_pair_first(ang)
+        sel, ang = sel[o], ang[np.ix_(o, o)]
+        tol = np.full(ang.shape, solver.tolerance_rad)
+        pattern = _pattern(ang, b_all[sel], tol)
+        assigns = solver._match(pattern)
+        chance = _Chance(ang, tol, 17, pattern.chirality != 0)
+        batch = solver._quick_checks(b_all, sel, assigns, cam, chance)
+        assert len(batch) == len(assigns)
+        for a, got in zip(assigns, batch, strict=True):
+            want = solver._quick_check(b_all, sel, a, cam, chance)
+            seen += 1
+            if want is None:
+                rejected += 1
+                assert got is None
+                continue
+            assert got[0] == want[0] and got[2] == want[2]
+            np.testing.assert_allclose(got[1], want[1], atol=1e-12)
+            np.testing.assert_array_equal(got[3], want[3])
+            np.testing.assert_array_equal(got[4], want[4])
+    assert seen >= 10 and 0 < rejected < seen  # both outcomes were compared
+
+
+def test_batched_chance_estimates_equal_the_single_ones():
+    from starid.verify import (
+        binomial_tail,
+        binomial_tail_many,
+        expected_chance_patterns,
+        expected_chance_patterns_many,
+    )
+
+    rng = np.random.default_rng(2)
+    ang = np.radians(rng.uniform(0.5, 12.0, (4, 4)))
+    ang = (ang + ang.T) / 2
+    np.fill_diagonal(ang, 0.0)
+    tol = np.radians(rng.uniform(0.005, 0.04, (5, 4, 4)))
+    many = expected_chance_patterns_many(ang, tol, 5000, True)
+    assert many.tolist() == [expected_chance_patterns(ang, t, 5000, True) for t in tol]
+    k = np.array([-1, 0, 1, 3, 7, 21, 22])
+    p = np.array([0.3, 0.001, 0.01, 0.02, 0.5, 0.9, 0.1])
+    assert binomial_tail_many(k, 20, p).tolist() == [binomial_tail(int(a), 20, float(b))
+                                                     for a, b in zip(k, p, strict=True)]
+
+
 def test_random_detections_are_never_accepted(solver, cam):
     # the issue's "never wrong" criterion, reduced (the benchmark runs 10 000 frames)
     rng = np.random.default_rng(2024)
