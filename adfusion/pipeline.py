@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from adfusion.detect_worker import keep_freed_memory
 from adfusion.estimator import Estimator, StepRecord
 from logs import LogWriter, McapLogReader
 from starid import rotations as rot
@@ -176,8 +177,12 @@ def replay(
 
     ``compression`` of the output's chunks: LZ4 by default, because replay is about
     speed — zstd took 1.9 ms per 512×480 intensified frame here (LZ4 0.2 ms) and gained
-    only 1.5× on such noisy video; ``"zstd"`` for smaller files, ``"none"``."""
+    only 1.5× on such noisy video; ``"zstd"`` for smaller files, ``"none"``.
+
+    Process-wide side effect: :func:`adfusion.detect_worker.keep_freed_memory` (glibc keeps
+    freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
     t_start = time.perf_counter()
+    keep_freed_memory()
     reader = McapLogReader(in_path)
     model = reader.camera_model()
     if model is None:

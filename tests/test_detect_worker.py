@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
 import starid
-from adfusion.detect_worker import DetectWorker
+from adfusion.detect_worker import DetectWorker, keep_freed_memory
 from sensors.scenarios import oedipus
 
 
@@ -35,3 +37,12 @@ def test_worker_raises_what_detect_raises_and_goes_on():
         assert w.result("ok").xy.shape == (1, 2)
         with pytest.raises(KeyError):
             w.result("never submitted")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc mallopt only")
+def test_keep_freed_memory_reaches_glibc_mallopt():
+    # both mallopt calls must succeed (mallopt returns 1); a wrong constant or signature
+    # makes glibc refuse and the replay would silently fault its buffers back in
+    assert keep_freed_memory() is True
+    with pytest.raises(ValueError, match="out of range"):
+        keep_freed_memory(mmap_threshold=1 << 40)
