@@ -9,6 +9,12 @@ deadlock the child (measured here: ``cv2.setNumThreads`` hung in a forked worker
 the spawn/forkserver methods re-import the caller's ``__main__``, which breaks scripts
 without a main guard. Results are those of a direct ``detect`` call, whatever the timing.
 
+Frames do not travel through the pipe: on POSIX systems they are copied into a shared
+memory file (``memfd``, inherited by the worker as a file descriptor, so nothing is left
+behind if either process dies) and the request names the slot. A 512×480 frame pickled
+through a 64 kB pipe cost both processes a copy, several system calls and a fresh
+allocation each; the slot costs one ``memcpy``.
+
 Example:
     >>> import numpy as np
     >>> from adfusion.detect_worker import DetectWorker
@@ -22,12 +28,17 @@ Example:
 
 from __future__ import annotations
 
+import mmap
+import os
 import pickle
 import queue
 import subprocess
 import sys
+import tempfile
 import threading
 from typing import Any
+
+import numpy as np
 
 __all__ = ["DetectWorker", "keep_freed_memory"]
 
@@ -64,21 +75,49 @@ def keep_freed_memory(mmap_threshold: int = 4 << 20, trim_threshold: int = 32 <<
 class DetectWorker:
     """A detection process: :meth:`submit` frames (keyed), :meth:`result` in any order.
 
-    Requests go through a feeder thread (a pipe write blocks until the worker reads, and
-    the caller should not wait for that); results come back in submission order and are
-    kept until asked for. An exception in the worker is raised by :meth:`result`, as the
-    direct call would have raised it. Use as a context manager, or call :meth:`close`.
+    Numeric image arrays go through ``slots`` shared-memory slots (:meth:`submit` waits
+    for the oldest result when all are in use; the slot size grows with the largest frame
+    seen); anything else (a path, an exotic array) is pickled into the request. Requests are
+    written by the caller (each is a few hundred bytes, and at most ``slots`` are pending,
+    so the pipe never fills); results come back in submission order and are kept until
+    asked for. The camera is pickled only when a different object is passed than last time
+    (the worker keeps the last one): do not mutate a camera between submissions.
+    Where there is no shared memory (not POSIX), every request is pickled whole and written
+    by a feeder thread, as a pipe write then blocks until the worker reads. An exception in
+    the worker is raised by :meth:`result`, as the direct call would have raised it. Use as
+    a context manager, or call :meth:`close`.
     """
 
-    def __init__(self) -> None:
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "adfusion.detect_worker"],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        self._outbox: queue.Queue = queue.Queue()
+    def __init__(self, slots: int = 16) -> None:
+        if slots < 1:
+            raise ValueError(f"slots must be >= 1, got {slots}")
+        self._slots = int(slots)
+        self._fd = -1
+        self._tmp = None
+        args = [sys.executable, "-m", "adfusion.detect_worker"]
+        if os.name == "posix":
+            if hasattr(os, "memfd_create"):
+                self._fd = os.memfd_create("adfusion-frames", getattr(os, "MFD_CLOEXEC", 0))
+            else:  # an unlinked temporary file does the same where memfd is missing
+                self._tmp = tempfile.TemporaryFile()
+                self._fd = self._tmp.fileno()
+            args.append(str(self._fd))
+        self._proc = subprocess.Popen(args, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                      pass_fds=(self._fd,) if self._fd >= 0 else ())
+        self._map: mmap.mmap | None = None
+        self._slot_bytes = 0
+        self._free = list(range(self._slots))[::-1]
+        self._slot_of: dict[Any, int] = {}
+        self._camera: Any = None
+        self._camera_sent = False
         self._order: list[Any] = []
         self._done: dict[Any, tuple[bool, Any]] = {}
-        self._feeder = threading.Thread(target=self._feed, daemon=True, name="detect-feed")
-        self._feeder.start()
+        self._outbox: queue.Queue | None = None
+        if self._fd < 0:
+            self._outbox = queue.Queue()
+            self._feeder = threading.Thread(target=self._feed, daemon=True,
+                                            name="detect-feed")
+            self._feeder.start()
 
     def _feed(self) -> None:
         pipe = self._proc.stdin
@@ -90,23 +129,83 @@ class DetectWorker:
                 return
         pipe.close()
 
+    def _send(self, item: tuple) -> None:
+        if self._outbox is not None:
+            self._outbox.put(item)
+            return
+        pipe = self._proc.stdin
+        pickle.dump(item, pipe, protocol=pickle.HIGHEST_PROTOCOL)
+        pipe.flush()
+
+    def _receive(self) -> None:
+        """Read the next result from the worker (blocks) and free its slot."""
+        try:
+            got, ok, value = pickle.load(self._proc.stdout)
+        except EOFError:
+            raise RuntimeError("the detection worker died (exit code "
+                               f"{self._proc.poll()})") from None
+        self._order.remove(got)
+        self._done[got] = (ok, value)
+        slot = self._slot_of.pop(got, None)
+        if slot is not None:
+            self._free.append(slot)
+
+    def _drain(self) -> None:
+        """Wait until the worker has answered everything submitted so far."""
+        while self._order:
+            self._receive()
+
+    def _place(self, image: np.ndarray) -> tuple[int, int]:
+        """Copy ``image`` into a free slot: (slot, byte offset)."""
+        n = image.nbytes
+        if n > self._slot_bytes:  # a larger frame: wait for the worker, then regrow
+            self._drain()
+            self._slot_bytes = max(n, 2 * self._slot_bytes)
+            os.ftruncate(self._fd, self._slot_bytes * self._slots)
+            self._map = None  # views taken from the old map are gone; it closes with them
+            self._map = mmap.mmap(self._fd, self._slot_bytes * self._slots)
+        while not self._free:
+            self._receive()
+        slot = self._free.pop()
+        offset = slot * self._slot_bytes
+        np.ndarray(image.shape, image.dtype, buffer=self._map, offset=offset)[...] = image
+        return slot, offset
+
     def submit(self, key: Any, image, camera, **kwargs: Any) -> None:
         """Queue ``starid.detect(image, camera, **kwargs)`` under ``key``."""
+        if key in self._order:
+            raise ValueError(f"frame {key!r} is already pending")
+        frame: Any = image
+        slot = None
+        if (self._fd >= 0 and isinstance(image, np.ndarray) and image.dtype.kind in "biuf"
+                and image.size):
+            slot, offset = self._place(image)
+            frame = (offset, image.shape, image.dtype.str)
+        elif self._fd >= 0 and isinstance(image, np.ndarray):
+            self._drain()  # a large pickle: the worker must be reading, not writing results
+        if self._camera_sent and camera is self._camera:
+            cam_item: tuple = ()
+        else:  # a new camera object: send it once, the worker keeps it
+            cam_item = (camera,)
+            self._camera, self._camera_sent = camera, True
         self._order.append(key)
-        self._outbox.put((key, image, camera, kwargs))
+        if slot is not None:
+            self._slot_of[key] = slot
+        try:
+            self._send((key, frame, slot is not None, cam_item, kwargs))
+        except BaseException:
+            self._order.remove(key)
+            self._camera_sent = False
+            if slot is not None:
+                self._free.append(self._slot_of.pop(key))
+            raise
 
     def result(self, key: Any):
         """The detections of frame ``key`` (waits for it); raises what ``detect`` raised."""
         while key not in self._done:
-            if not self._order:
+            if key not in self._order:
                 raise KeyError(f"frame {key!r} was not submitted")
-            try:
-                got, ok, value = pickle.load(self._proc.stdout)
-            except EOFError:
-                raise RuntimeError("the detection worker died (exit code "
-                                   f"{self._proc.poll()})") from None
-            self._order.remove(got)
-            self._done[got] = (ok, value)
+            self._receive()
         ok, value = self._done.pop(key)
         if not ok:
             raise value
@@ -115,14 +214,26 @@ class DetectWorker:
     def close(self) -> None:
         """Stop the worker (pending results are dropped)."""
         if self._proc.poll() is None:
-            self._outbox.put(None)
-            self._feeder.join(timeout=5)
+            if self._outbox is not None:
+                self._outbox.put(None)
+                self._feeder.join(timeout=5)
+            else:
+                try:
+                    self._proc.stdin.close()
+                except OSError:
+                    pass
             try:
                 self._proc.wait(timeout=5)
             except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
         self._proc.stdout.close()
+        self._map = None
+        if self._tmp is not None:
+            self._tmp.close()
+        elif self._fd >= 0:
+            os.close(self._fd)
+        self._fd = -1
 
     def __enter__(self) -> DetectWorker:
         return self
@@ -131,24 +242,35 @@ class DetectWorker:
         self.close()
 
 
-def _serve() -> None:
+def _serve(fd: int = -1) -> None:
     from starid import detect
 
-    keep_freed_memory()  # every request unpickles a fresh frame (see the function)
-
+    keep_freed_memory()  # pickled requests still allocate; see the function
     inp, out = sys.stdin.buffer, sys.stdout.buffer
+    shared: mmap.mmap | None = None
+    camera = None
     while True:
         try:
-            key, image, camera, kwargs = pickle.load(inp)
+            key, frame, in_slot, cam_item, kwargs = pickle.load(inp)
         except EOFError:
             return
+        if cam_item:
+            camera = cam_item[0]
         try:
-            reply = (key, True, detect(image, camera, **kwargs))
+            if in_slot:
+                offset, shape, dtype = frame
+                dtype = np.dtype(dtype)
+                end = offset + dtype.itemsize * int(np.prod(shape))
+                if shared is None or len(shared) < end:  # the caller grew the file
+                    shared = mmap.mmap(fd, os.fstat(fd).st_size)
+                frame = np.ndarray(shape, dtype, buffer=shared, offset=offset)
+            reply = (key, True, detect(frame, camera, **kwargs))
         except Exception as exc:  # handed to the caller, raised there
             reply = (key, False, exc)
+        frame = None  # no view of the old map may outlive a regrowth
         pickle.dump(reply, out, protocol=pickle.HIGHEST_PROTOCOL)
         out.flush()
 
 
 if __name__ == "__main__":
-    _serve()
+    _serve(int(sys.argv[1]) if len(sys.argv) > 1 else -1)
