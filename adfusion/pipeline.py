@@ -236,7 +236,10 @@ def replay(
                 _copy(log, msg)
             elif topic in ("/camera/image", "/camera/centroids"):
                 if topic == "/camera/image":
-                    log.write_image(t, p, "camera")
+                    if msg.raw is not None:  # a foxglove.RawImage: copied as read
+                        log.write_protobuf_bytes(topic, t, "foxglove.RawImage", msg.raw)
+                    else:
+                        log.write_image(t, p, "camera")
                     rec = est.step(t, frame=p)
                 else:
                     rec = est.step(t, detections=np.asarray(p["xy"], dtype=np.float64))
