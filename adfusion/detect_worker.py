@@ -110,6 +110,7 @@ class DetectWorker:
         self._slot_of: dict[Any, int] = {}
         self._camera: Any = None
         self._camera_sent = False
+        self._hello = False  # the worker announces itself once it has imported starid
         self._order: list[Any] = []
         self._done: dict[Any, tuple[bool, Any]] = {}
         self._outbox: queue.Queue | None = None
@@ -137,8 +138,30 @@ class DetectWorker:
         pickle.dump(item, pipe, protocol=pickle.HIGHEST_PROTOCOL)
         pipe.flush()
 
+    def ready(self) -> bool:
+        """Whether the worker has started up (imported ``starid``); never blocks. Where
+        pipes cannot be polled (not POSIX) the answer is always ``True``."""
+        if self._hello or os.name != "posix":
+            return True
+        import select
+
+        if select.select([self._proc.stdout], [], [], 0)[0]:
+            self._load()  # the hello, or EOF of a worker that died (raised later)
+            self._hello = True
+        return self._hello
+
+    def _load(self) -> Any:
+        try:
+            return pickle.load(self._proc.stdout)
+        except EOFError:
+            raise RuntimeError("the detection worker died (exit code "
+                               f"{self._proc.poll()})") from None
+
     def _receive(self) -> None:
         """Read the next result from the worker (blocks) and free its slot."""
+        if not self._hello:
+            self._load()
+            self._hello = True
         try:
             got, ok, value = pickle.load(self._proc.stdout)
         except EOFError:
@@ -247,13 +270,17 @@ def _serve(fd: int = -1) -> None:
 
     keep_freed_memory()  # pickled requests still allocate; see the function
     inp, out = sys.stdin.buffer, sys.stdout.buffer
+    pickle.dump("ready", out)
+    out.flush()
     shared: mmap.mmap | None = None
     camera = None
     while True:
         try:
             key, frame, in_slot, cam_item, kwargs = pickle.load(inp)
         except EOFError:
-            return
+            # nothing to clean up (results are flushed, the shared memory dies with us):
+            # skipping the interpreter's teardown saves the caller ~0.1 s waiting for us
+            os._exit(0)
         if cam_item:
             camera = cam_item[0]
         try:

@@ -92,3 +92,18 @@ def test_a_new_camera_object_reaches_the_worker():
         with pytest.raises(ValueError, match="already pending"):
             w.submit("x", img, large, **kw)
             w.submit("x", img, large, **kw)
+
+
+def test_ready_reports_the_started_worker_and_results_follow():
+    import time
+
+    img = _stars((40, 40), np.uint8, [(10, 10)])
+    kw = dict(threshold=100, min_area=1, max_sharpness=None)
+    with DetectWorker() as w:
+        deadline = time.monotonic() + 60.0
+        while not w.ready():  # polls: each call returns at once
+            assert time.monotonic() < deadline, "the worker never announced itself"
+            time.sleep(0.01)
+        assert w.ready()  # stays ready; the announcement is not mistaken for a result
+        w.submit("a", img, None, **kw)
+        assert w.result("a").xy.shape == (1, 2)
