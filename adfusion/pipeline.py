@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from adfusion.detect_worker import keep_freed_memory
 from adfusion.estimator import Estimator, StepRecord
 from logs import LogWriter, McapLogReader
 from starid import rotations as rot
@@ -176,8 +177,25 @@ def replay(
 
     ``compression`` of the output's chunks: LZ4 by default, because replay is about
     speed — zstd took 1.9 ms per 512×480 intensified frame here (LZ4 0.2 ms) and gained
-    only 1.5× on such noisy video; ``"zstd"`` for smaller files, ``"none"``."""
+    only 1.5× on such noisy video; ``"zstd"`` for smaller files, ``"none"``.
+
+    Process-wide side effect: :func:`adfusion.detect_worker.keep_freed_memory` (glibc keeps
+    freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
     t_start = time.perf_counter()
+    keep_freed_memory()
+    ahead = _DetectAhead()
+    ahead.start()
+    try:
+        return _replay(in_path, out_path, ahead, t_start, use_gyro=use_gyro, use_mag=use_mag,
+                       mag_limit=mag_limit, progress=progress, smooth=smooth,
+                       smooth_mode=smooth_mode, compression=compression)
+    finally:
+        ahead.close()
+
+
+def _replay(in_path, out_path, ahead: _DetectAhead, t_start: float, *, use_gyro: bool,
+            use_mag: bool, mag_limit: float | None, progress: bool, smooth: bool,
+            smooth_mode: str, compression: str) -> ReplaySummary:
     reader = McapLogReader(in_path)
     model = reader.camera_model()
     if model is None:
@@ -191,7 +209,7 @@ def replay(
     gyro_cfg = config.get("gyro", {})
     sigma_px = float(config.get("camera", {}).get("centroid_sigma_px", 0.5))
     solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5))
-    ahead = _DetectAhead(camera)
+    ahead.camera = camera
     est = Estimator(solver, q_body_cam,
                     arw_rad_sqrt_s=float(gyro_cfg.get("arw_rad_sqrt_s", 1e-4)),
                     rrw_rad_s_sqrt_s=float(gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6)),
@@ -231,7 +249,10 @@ def replay(
                 _copy(log, msg)
             elif topic in ("/camera/image", "/camera/centroids"):
                 if topic == "/camera/image":
-                    log.write_image(t, p, "camera")
+                    if msg.raw is not None:  # a foxglove.RawImage: copied as read
+                        log.write_protobuf_bytes(topic, t, "foxglove.RawImage", msg.raw)
+                    else:
+                        log.write_image(t, p, "camera")
                     rec = est.step(t, frame=p)
                 else:
                     rec = est.step(t, detections=np.asarray(p["xy"], dtype=np.float64))
@@ -260,38 +281,54 @@ class _DetectAhead:
     """Star detection in a worker process (:class:`adfusion.detect_worker.DetectWorker`),
     ``depth`` frames ahead of the filter, on machines with two or more cores.
 
-    :meth:`read` passes the messages through unchanged, ``depth`` frames behind the
-    submissions; the estimator calls the object in place of ``starid.detect`` and gets the
+    :meth:`start` launches the worker (do it early: its interpreter takes ~0.5 s to import
+    ``starid``, time the caller can spend loading the catalogue). :meth:`read` passes the
+    messages through unchanged, ``depth`` frames behind the submissions; frames read before
+    the worker is ready are not submitted but detected here when asked for, rather than
+    waited for. The estimator calls the object in place of ``starid.detect`` and gets the
     result computed for that very frame (errors raised there, as a direct call would).
     """
 
-    def __init__(self, camera: Camera, depth: int = 8) -> None:
+    def __init__(self, camera: Camera | None = None, depth: int = 8) -> None:
         self.camera = camera
         self.depth = depth
         self._worker = None
         self._keys: dict[int, int] = {}
         self._submitted = 0
 
-    def read(self, messages):
+    def start(self) -> None:
+        """Launch the worker now (on two or more cores; idempotent)."""
         import os
-        from collections import deque
 
         from adfusion.detect_worker import DetectWorker
 
-        if (os.cpu_count() or 1) < 2:
+        if self._worker is None and (os.cpu_count() or 1) >= 2:
+            self._worker = DetectWorker()
+
+    def close(self) -> None:
+        """Stop the worker (idempotent)."""
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+
+    def read(self, messages):
+        from collections import deque
+
+        self.start()
+        if self._worker is None:
             yield from messages
             return
-        self._worker = DetectWorker()
         buf: deque = deque()
         frames = 0
         try:
             for msg in messages:
                 buf.append(msg)
                 if msg.topic == "/camera/image":
-                    key = self._submitted
-                    self._submitted += 1
-                    self._keys[id(msg.payload)] = key
-                    self._worker.submit(key, msg.payload, self.camera)
+                    if self._worker.ready():
+                        key = self._submitted
+                        self._submitted += 1
+                        self._keys[id(msg.payload)] = key
+                        self._worker.submit(key, msg.payload, self.camera)
                     frames += 1
                 while frames > self.depth:
                     out = buf.popleft()
@@ -299,12 +336,11 @@ class _DetectAhead:
                     yield out
             yield from buf
         finally:
-            self._worker.close()
-            self._worker = None
+            self.close()
 
     def __call__(self, frame, camera):
         key = self._keys.pop(id(frame), None)
-        if key is None or self._worker is None:  # not read through this object
+        if key is None or self._worker is None:  # not submitted (or not read through us)
             from starid import detect
 
             return detect(frame, camera)

@@ -17,6 +17,7 @@ Example:
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterable, Sequence
 from typing import Any
 
@@ -120,6 +121,92 @@ def encode_png_image(t_ns: int, image: np.ndarray, frame_id: str) -> CompressedI
                            format="png")
 
 
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while n > 0x7F:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _field(number: int, payload: bytes) -> bytes:
+    """A length-delimited field (sub-message or string) in protobuf wire format."""
+    return _varint(number << 3 | 2) + _varint(len(payload)) + payload
+
+
+def _stamp_bytes(t_ns: int) -> bytes:
+    return _stamp(t_ns).SerializeToString()
+
+
+# One serialized Point2 as a repeated field: tag, length 18, x (field 1, double), y (field 2).
+_POINT = np.dtype([("tag", "u1"), ("len", "u1"), ("tx", "u1"), ("x", "<f8"), ("ty", "u1"),
+                   ("y", "<f8")])
+assert _POINT.itemsize == 20
+
+
+def _points_bytes(field_number: int, xy: ArrayLike) -> bytes:
+    """Repeated ``Point2`` field of (N, 2) points, packed by numpy instead of N objects."""
+    arr = np.asarray(xy, dtype=float).reshape(-1, 2)
+    rec = np.empty(len(arr), _POINT)
+    rec["tag"], rec["len"], rec["tx"], rec["ty"] = field_number << 3 | 2, 18, 0x09, 0x11
+    rec["x"], rec["y"] = arr[:, 0], arr[:, 1]
+    return rec.tobytes()
+
+
+_XY = struct.Struct("<dBd")
+
+
+def _position_bytes(x: float, y: float) -> bytes:
+    """Field 2 (``position``, a Point2) of a circle or text annotation."""
+    return b"\x12\x12\x09" + _XY.pack(x, 0x11, y)
+
+
+def _layer_template(kind: int, color: Sequence[float], thickness: float, role: str) -> bytes:
+    return PointsAnnotation(type=kind, outline_color=_color(color), thickness=thickness,
+                            metadata=_meta(role=role)).SerializeToString()
+
+
+# The constant fields of every layer, serialized once: protobuf concatenation is merging,
+# so a message is its template's bytes followed by the fields that vary. Building the
+# ~100 annotation objects of a frame one by one cost 0.3 ms per replayed frame.
+_DETECTIONS = _layer_template(PointsAnnotation.POINTS, DETECTION_COLOR, 5.0, "detections")
+_PREDICTED = _layer_template(PointsAnnotation.POINTS, PREDICTED_COLOR, 3.0, "predicted")
+_OCCUPIED = _layer_template(PointsAnnotation.LINE_LOOP, OCCUPIED_COLOR, 1.5, "occupied")
+_CIRCLE = CircleAnnotation(diameter=IDENTIFIED_DIAMETER_PX, thickness=1.5,
+                           outline_color=_color(IDENTIFIED_COLOR),
+                           metadata=_meta(role="identified")).SerializeToString()
+_TEXT = TextAnnotation(font_size=12.0, text_color=_color(IDENTIFIED_COLOR),
+                       background_color=_color((0.0, 0.0, 0.0, 0.5)),
+                       metadata=_meta(role="label")).SerializeToString()
+
+
+def encode_annotations_bytes(
+    t_ns: int,
+    detections_xy: ArrayLike | None = None,
+    identified: Iterable[tuple[float, float, Any]] = (),
+    predicted_xy: ArrayLike | None = None,
+    occupied: Iterable[ArrayLike] = (),
+) -> bytes:
+    """:func:`encode_annotations`, serialized: the same message (parse it and compare),
+    composed from pre-serialized pieces in protobuf wire format without building it."""
+    stamp = _field(1, _stamp_bytes(t_ns))  # field 1 (timestamp) of every annotation type
+    circles, texts, layers = [], [], []
+    for x, y, label in identified:
+        x, y, text = float(x), float(y), str(label).encode()
+        label_kv = _field(7, _field(1, b"label") + _field(2, text))
+        circles.append(_field(1, stamp + _position_bytes(x, y) + _CIRCLE + label_kv))
+        texts.append(_field(3, stamp + _position_bytes(x + IDENTIFIED_DIAMETER_PX, y - 4.0)
+                            + _field(3, text) + _TEXT))
+    if detections_xy is not None:
+        layers.append(_field(2, stamp + _points_bytes(3, detections_xy) + _DETECTIONS))
+    if predicted_xy is not None:
+        layers.append(_field(2, stamp + _points_bytes(3, predicted_xy) + _PREDICTED))
+    for polygon in occupied:
+        layers.append(_field(2, stamp + _points_bytes(3, polygon) + _OCCUPIED))
+    return b"".join(circles + layers + texts) + _field(5, stamp[2:])  # stamp[2:]: its body
+
+
 def encode_annotations(
     t_ns: int,
     detections_xy: ArrayLike | None = None,
@@ -130,6 +217,19 @@ def encode_annotations(
     """``foxglove.ImageAnnotations`` in four layers, each tagged ``role`` in its metadata:
     detections (yellow points), identified stars (green circles + id text), projected
     catalogue (cyan points), occupied regions (red closed polygons, e.g. the tether mask)."""
+    return ImageAnnotations.FromString(encode_annotations_bytes(
+        t_ns, detections_xy, identified, predicted_xy, occupied))
+
+
+def _encode_annotations_by_objects(
+    t_ns: int,
+    detections_xy: ArrayLike | None = None,
+    identified: Iterable[tuple[float, float, Any]] = (),
+    predicted_xy: ArrayLike | None = None,
+    occupied: Iterable[ArrayLike] = (),
+) -> ImageAnnotations:
+    """The message built object by object (the reference :func:`encode_annotations_bytes`
+    is tested against)."""
     stamp = _stamp(t_ns)
     msg = ImageAnnotations()
     if detections_xy is not None:

@@ -23,8 +23,9 @@ class Message:
             for foreign MCAP channels that were not mapped, the channel's own topic.
         payload: ``numpy.ndarray`` for images (grey, uint8 or uint16), a ``dict`` otherwise.
             Quaternions inside payloads are Hamilton scalar-first ``[w, x, y, z]``.
-        raw: the encoded JSON bytes the payload was decoded from (MCAP JSON channels), so
-            that a replay can copy inputs to its output without encoding them again.
+        raw: the encoded bytes the payload was decoded from (MCAP JSON channels: JSON text;
+            ``foxglove.RawImage`` channels: the protobuf message), so that a replay can copy
+            inputs to its output without encoding them again.
     """
 
     t_s: float

@@ -332,8 +332,9 @@ class McapLogReader:
                           f"{record.log_time / 1e9:.6f} s ({exc}); skipped", McapReadWarning,
                           stacklevel=3)
             return None
-        raw = record.data if decoder is json.loads else None
-        return Message(record.log_time / 1e9, topic, payload, raw)
+        # JSON and raw frames keep their bytes, so that a replay copies them as read
+        keep = decoder is json.loads or channel.schema_name == "foxglove.RawImage"
+        return Message(record.log_time / 1e9, topic, payload, record.data if keep else None)
 
     # ------------------------------------------------------------------ pass 2: merge
     def _chunk_messages(self, f: io.BufferedReader, ref: _ChunkRef) -> list[McapMessage]:

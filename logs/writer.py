@@ -187,6 +187,15 @@ class LogWriter:
         kind = msg.DESCRIPTOR.full_name
         self._add(self._channel(topic, kind), t_ns, msg.SerializeToString())
 
+    def write_protobuf_bytes(self, topic: str, t_s: float, schema_name: str,
+                             data: bytes) -> None:
+        """One Foxglove message already serialized (``schema_name`` one of
+        :data:`logs.foxglove.MESSAGE_TYPES`), e.g. an input frame copied as read
+        (``Message.raw``): no decode/encode round trip of 245 kB per frame."""
+        if schema_name not in fg.MESSAGE_TYPES:
+            raise ValueError(f"unknown Foxglove schema {schema_name!r}")
+        self._add(self._channel(topic, schema_name), self._ns(t_s), bytes(data))
+
     # ------------------------------------------------------------------ Foxglove topics
     def write_image(self, t_s: float, image: np.ndarray, frame_id: str = "camera", *,
                     topic: str = IMAGE_TOPIC, png: bool = False) -> None:
@@ -213,8 +222,9 @@ class LogWriter:
             occupied: closed polygons (K, 2) of excluded regions, e.g. the tether (red).
         """
         t_ns = self._ns(t_s)
-        msg = fg.encode_annotations(t_ns, detections_xy, identified, predicted_xy, occupied)
-        self._write_proto(topic, t_ns, msg)
+        data = fg.encode_annotations_bytes(t_ns, detections_xy, identified, predicted_xy,
+                                           occupied)
+        self._add(self._channel(topic, "foxglove.ImageAnnotations"), t_ns, data)
 
     def write_pose(self, topic: str, t_s: float, q_wxyz: ArrayLike, frame_id: str = "icrs",
                    position: ArrayLike = (0.0, 0.0, 0.0)) -> None:

@@ -540,3 +540,41 @@ def test_no_warning_for_intact_file(tmp_path: Path) -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert len(list(McapSource(path))) == McapLogReader(path).message_count
+
+
+@pytest.mark.parametrize("case", range(4))
+def test_annotation_bytes_parse_to_the_message_built_object_by_object(case):
+    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+
+    from logs import foxglove as fg
+
+    rng = np.random.default_rng(case)
+    det = rng.uniform(-1.0, 600.0, (int(rng.integers(0, 40)), 2))
+    det[:2] = 0.0  # zeros are omitted by the protobuf library, written explicitly here
+    ident = [(float(x), float(y), f"HIP {i}") for i, (x, y) in enumerate(det[::3])]
+    ident.append((-0.0, 1e-300, 12345))  # labels are str()-ed; an int, a non-ASCII text:
+    ident.append((3.5, 2.25, "étoile"))
+    args = [(case * 10**9 + 123, det, ident, rng.uniform(0, 500, (7, 2)), [det[:4]]),
+            (0, None, (), None, ()),
+            (2**40, np.zeros((0, 2)), [], np.zeros((0, 2)), []),
+            (5, det, (), None, [det[:3], det[3:9]])][case]
+    data = fg.encode_annotations_bytes(*args)
+    assert ImageAnnotations.FromString(data) == fg._encode_annotations_by_objects(*args)
+    assert fg.encode_annotations(*args) == fg._encode_annotations_by_objects(*args)
+
+
+def test_protobuf_bytes_are_written_as_given_and_raw_frames_read_back(tmp_path):
+    from logs import foxglove as fg
+
+    path = tmp_path / "copy.mcap"
+    img = _frame(3)
+    data = fg.encode_raw_image(2_000_000_000, img, "camera").SerializeToString()
+    with LogWriter(path) as log:
+        log.write_protobuf_bytes("/camera/image", 2.0, "foxglove.RawImage", data)
+        log.write_image(3.0, img)
+        with pytest.raises(ValueError, match="unknown Foxglove schema"):
+            log.write_protobuf_bytes("/x", 1.0, "foxglove.Nope", data)
+    got = list(McapLogReader(path))
+    assert [m.raw for m in got] == [data, fg.encode_raw_image(3_000_000_000, img,
+                                                              "camera").SerializeToString()]
+    assert all(np.array_equal(m.payload, img) for m in got)

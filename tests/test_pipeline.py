@@ -48,6 +48,24 @@ def test_video_only_replay_estimates_the_rate_itself(rendered):
     assert inside.mean() >= 0.95
 
 
+def test_replay_copies_input_frames_as_read_and_annotates_them(rendered):
+    d, sim = rendered
+    replay(sim, d / "copy.mcap", progress=False)
+
+    def frames(path):
+        return [(ch.topic, ch.schema_name, r.log_time, r.data)
+                for ch, r in McapLogReader(path).raw_records() if ch.topic == "/camera/image"]
+
+    got, want = frames(d / "copy.mcap"), frames(sim)
+    assert len(got) == 150 and got == want  # the same foxglove.RawImage bytes, same times
+    out = McapLogReader(d / "copy.mcap")
+    notes = [m.payload for m in out if m.topic == "/camera/annotations"]
+    assert len(notes) == 150 and all(len(n["detections_xy"]) >= 3 for n in notes)
+    assert sum(len(n["identified"]) for n in notes) >= 3 * 140
+    ch = next(c for c in out.channels.values() if c.topic == "/camera/annotations")
+    assert ch.schema_name == "foxglove.ImageAnnotations" and ch.message_encoding == "protobuf"
+
+
 def test_replay_is_deterministic(rendered):
     d, sim = rendered
     replay(sim, d / "a.mcap", progress=False)
