@@ -210,10 +210,13 @@ def _replay(in_path, out_path, ahead: _DetectAhead, t_start: float, *, use_gyro:
     sigma_px = float(config.get("camera", {}).get("centroid_sigma_px", 0.5))
     solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5))
     ahead.camera = camera
+    # the exposure lets tracking model motion smear (long streaks that break into pieces)
+    exposure = config.get("camera", {}).get("exposure_s")
     est = Estimator(solver, q_body_cam,
                     arw_rad_sqrt_s=float(gyro_cfg.get("arw_rad_sqrt_s", 1e-4)),
                     rrw_rad_s_sqrt_s=float(gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6)),
-                    video_only=not use_gyro, detect=ahead)
+                    video_only=not use_gyro, detect=ahead,
+                    exposure_s=None if exposure is None else float(exposure))
     summary = ReplaySummary()
     truth_q: np.ndarray | None = None
     recording, truth_frames = None, []  # for the smoother
