@@ -137,6 +137,38 @@ class PatternIndex:
             keep = (c > cmin_a[parent]) & (c < cmax_a[parent])
         return parent[keep], self.nbr_idx[pos[keep]].astype(np.int64)
 
+    def neighbours_in_windows(
+        self, stars: IntArray, counts: IntArray, cos_min: NDArray[np.float64],
+        cos_max: NDArray[np.float64],
+    ) -> tuple[IntArray, IntArray]:
+        """:meth:`neighbours_in_window` for G groups of stars at once: the first
+        ``counts[g]`` stars of ``stars`` use window g, the next ``counts[g + 1]`` window
+        g + 1, and so on. Same result, group by group, as a scalar call per group (the
+        same bins, the same exact filter, rows in the same order): a caller matching many
+        small patterns pays the per-call overhead once."""
+        stars = np.asarray(stars, dtype=np.int64)
+        if len(stars) == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        nb = self.nbr_bin.shape[1] - 1
+        step = self.max_sep_rad / nb
+        # per group, as the scalar path: windows are cosines of angles in [0, π]
+        b0 = [min(max(int(math.acos(c) / step), 0), nb) for c in np.asarray(cos_max).tolist()]
+        b1 = [min(max(int(math.acos(c) / step) + 1, 0), nb)
+              for c in np.asarray(cos_min).tolist()]
+        lo = self.nbr_bin[stars, np.repeat(b0, counts)]
+        hi = self.nbr_bin[stars, np.repeat(b1, counts)]
+        n_cand = (hi - lo).astype(np.int64)
+        total = int(n_cand.sum())
+        if total == 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        parent = np.repeat(np.arange(len(stars)), n_cand)
+        pos = np.arange(total) + (lo.astype(np.int64) - np.cumsum(n_cand) + n_cand)[parent]
+        c = self.nbr_cos[pos]
+        cmin = np.repeat(np.asarray(cos_min, dtype=np.float64), counts)[parent]
+        cmax = np.repeat(np.asarray(cos_max, dtype=np.float64), counts)[parent]
+        keep = (c > cmin) & (c < cmax)
+        return parent[keep], self.nbr_idx[pos[keep]].astype(np.int64)
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "_neg_pair_cos", -self.pair_cos)  # ascending search key
 

@@ -178,6 +178,33 @@ def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
     assert seen >= 10 and 0 < rejected < seen  # both outcomes were compared
 
 
+def test_runs_of_three_star_patterns_prepared_together_change_no_result(
+        solver, cat, cam, monkeypatch):
+    """The combination stage prepares its 3-star patterns in batches (matches and quick
+    checks of several patterns at once, each with its own trial number): the solutions
+    are those of trying one pattern at a time — path, trials, matches and p_false."""
+    rng = np.random.default_rng(44)
+    frames = [sky_frame(cat, cam, rng, n_false=8)[0] for _ in range(10)]
+    frames += [rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2))]
+    runs: list[int] = []
+    real = type(solver)._prepare_run
+
+    def spy(self, run, *args):
+        runs.append(len(run))
+        return real(self, run, *args)
+
+    monkeypatch.setattr(type(solver), "_prepare_run", spy)
+    batched = [solver.solve(xy) for xy in frames]
+    assert sum(runs) > 2 * len(frames)  # the combination stage ran, in batches
+    monkeypatch.setattr(type(solver), "_prepare_run", lambda self, *args: None)
+    for xy, a in zip(frames, batched, strict=True):
+        b = solver.solve(xy)
+        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches, a.matching_counter) \
+            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches, b.matching_counter)
+        assert a.p_false == b.p_false
+        assert [c.p_false for c in a.candidates] == [c.p_false for c in b.candidates]
+
+
 def test_batched_chance_estimates_equal_the_single_ones():
     from starid.verify import (
         binomial_tail,
