@@ -220,6 +220,7 @@ def extend_indexed(
 
 def heads_indexed(
     index: PatternIndex, patterns: list[Pattern], max_partials: int = 200_000,
+    partners: list[tuple[NDArray[np.bool_], NDArray[np.bool_]]] | None = None,
 ) -> list[IntArray | str]:
     """``extend_indexed(index, p, first_pair_indexed(index, p), max_partials, upto=3)``
     for many patterns at once: the assignments (K, 3) of each pattern's first three
@@ -230,14 +231,32 @@ def heads_indexed(
     The third star of every pattern is placed in one vectorised pass (one neighbour
     look-up, one distance check, one mirror check over all patterns' partials): a
     3-star pattern's match is a few small array operations, and doing them pattern by
-    pattern was mostly per-call overhead."""
+    pattern was mostly per-call overhead.
+
+    ``partners`` optionally gives, per pattern, :meth:`PatternIndex.stars_in_window` of
+    its (0, 2) and (1, 2) windows: a first pair (a, b) can only be extended if a has
+    some partner in the first window and b one in the second, so the other pairs —
+    typically ~95 % — are dropped before the look-up. Dropping partials that extend to
+    nothing leaves the result (rows and order) unchanged; the work budget still counts
+    the whole first-pair window."""
     out: list[IntArray | str] = [np.zeros((0, 3), dtype=np.int64) for _ in patterns]
     live: list[int] = []
     firsts: list[IntArray] = []
     for g, p in enumerate(patterns):
-        first = first_pair_indexed(index, p)
-        if len(first) > max_partials:
-            out[g] = f"{len(first)} partial assignments at level 2"
+        if partners is None:
+            first = first_pair_indexed(index, p)
+            n_first = len(first)
+        else:
+            i, j = index.pairs_in_window(p.cos_min[0, 1], p.cos_max[0, 1])
+            n_first = 2 * len(i)
+            if n_first <= max_partials:
+                m02, m12 = partners[g]
+                fwd = m02[i] & m12[j]  # rows (i, j), then the swapped rows (j, i)
+                bwd = m02[j] & m12[i]
+                first = np.concatenate([np.stack([i[fwd], j[fwd]], axis=1),
+                                        np.stack([j[bwd], i[bwd]], axis=1)])
+        if n_first > max_partials:
+            out[g] = f"{n_first} partial assignments at level 2"
         elif len(first):
             live.append(g)
             firsts.append(first)

@@ -77,7 +77,10 @@ from starid.verify import (
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
 _3_SQRT2 = 3.0 * math.sqrt(2.0)
-_BATCH = 16  # 3-star patterns prepared together (see Solver._solve_at)
+# 3-star patterns prepared together (see Solver._solve_at): the first batch of a solve is
+# small (a frame often succeeds within a few combinations, and patterns prepared past
+# the accepted one are wasted), later ones grow (a long search pays less overhead)
+_BATCHES = (4, 8, 16, 32)
 _CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
 
@@ -480,7 +483,7 @@ class Solver:
         # 4-star combinations after a failed Not-Modus are mostly such supersets
         no_match: list[list[int]] = [[] for _ in cams]
         # 3-star patterns come in runs (the combination stage); a run is prepared in
-        # batches — windows, matches and quick checks of up to _BATCH patterns at once,
+        # batches — windows, matches and quick checks of up to _BATCHES patterns at once,
         # each with the trial number it will have — and then walked in order exactly as
         # one pattern at a time would be. A 3-star pattern never holds a smaller no-match
         # set, so nothing in a run depends on the outcome of an earlier pattern of it.
@@ -488,6 +491,10 @@ class Solver:
         queue: deque[tuple[tuple[int, ...], str]] = deque()
         # trial number → (sel, pattern, tol, assignments or a budget note, quick checks)
         ready: dict[int, tuple] = {}
+        # per (focal guess, detection pair): the catalogue stars with a partner inside
+        # the pair's window (PatternIndex.stars_in_window), shared by the runs' patterns
+        pair_stars: dict[tuple[int, int, int], NDArray[np.bool_]] = {}
+        n_runs = 0
         while True:
             if not queue:
                 nxt = next(patterns, None)
@@ -495,15 +502,17 @@ class Solver:
                     break
                 queue.append(nxt)
                 room = max(0, (budget - tried) // len(cams))
-                while len(nxt[0]) == 3 and len(queue) < min(_BATCH, room):
+                size = _BATCHES[min(n_runs, len(_BATCHES) - 1)]
+                while len(nxt[0]) == 3 and len(queue) < min(size, room):
                     nxt = next(patterns, None)
                     if nxt is None:
                         break
                     queue.append(nxt)
                 run = list(itertools.takewhile(lambda p: len(p[0]) == 3, queue))[:room]
                 if len(run) > 1:
+                    n_runs += 1
                     self._prepare_run([p for p, _ in run], tried, cams, b_cams, tables,
-                                      prefixes, ready)
+                                      prefixes, pair_stars, ready)
             pat_idx, path = queue.popleft()
             if tried >= budget:
                 budget_note = f"{tried} pattern trials (the budget)"
@@ -580,6 +589,7 @@ class Solver:
     def _prepare_run(self, run: list[tuple[int, ...]], tried: int, cams: list[Camera],
                      b_cams: list[NDArray], tables: list[_PairWindows],
                      prefixes: dict[tuple[int, ...], NDArray[np.int64] | str],
+                     pair_stars: dict[tuple[int, int, int], NDArray[np.bool_]],
                      ready: dict[int, tuple]) -> None:
         """Windows, matches and quick checks of a run of 3-star patterns, keyed in
         ``ready`` by the trial number each (pattern, focal guess) will have when
@@ -597,8 +607,19 @@ class Solver:
                     key = (ci, pattern.chirality, *sel.tolist())
                     if key not in prefixes:
                         new[key] = pattern
+                partners = []
+                for key, pattern in new.items():
+                    ends = []
+                    for s, t in ((0, 2), (1, 2)):  # windows to the third star
+                        pair = (ci, *sorted((key[2 + s], key[2 + t])))
+                        if pair not in pair_stars:
+                            pair_stars[pair] = self.index.stars_in_window(
+                                pattern.cos_min[s, t], pattern.cos_max[s, t])
+                        ends.append(pair_stars[pair])
+                    partners.append((ends[0], ends[1]))
                 for key, part in zip(new, heads_indexed(self.index, list(new.values()),
-                                                        self.work_budget), strict=True):
+                                                        self.work_budget, partners),
+                                     strict=True):
                     prefixes[key] = part
             groups = []
             for j, (sel, pattern, tol) in enumerate(shapes):

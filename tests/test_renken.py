@@ -404,9 +404,10 @@ def test_heads_over_the_work_budget_carry_the_message_extend_would_raise(small_s
 def test_neighbours_in_group_windows_equal_one_window_per_call(small_sky):
     v, idx = small_sky
     rng = np.random.default_rng(4)
-    counts = np.array([7, 0, 40, 13])
+    counts = np.array([0, 7, 0, 40, 13, 0])
     stars = rng.integers(0, len(v), counts.sum())
     ang = np.radians(rng.uniform(1.0, 40.0, len(counts)))
+    ang[3] = np.radians(60.0)  # a window beyond the index: no neighbours
     cmin, cmax = np.cos(ang + 0.01), np.cos(ang - 0.01)
     parent, nbr = idx.neighbours_in_windows(stars, counts, cmin, cmax)
     start = 0
@@ -419,3 +420,31 @@ def test_neighbours_in_group_windows_equal_one_window_per_call(small_sky):
     np.testing.assert_array_equal(parent, np.concatenate(want_p))
     np.testing.assert_array_equal(nbr, np.concatenate(want_n))
     assert len(parent) > 0
+
+
+@given(seed=st.integers(0, 10**6), tol_deg=st.floats(0.05, 2.5))
+@settings(max_examples=30, deadline=None)
+def test_heads_skip_first_pairs_without_partners_and_lose_nothing(small_sky, seed, tol_deg):
+    """With the partner masks of the windows to the third star, first pairs that cannot
+    be extended are dropped before the look-up: the heads are unchanged."""
+    v, idx = small_sky
+    rng = np.random.default_rng(seed)
+    pats = []
+    for _ in range(4):
+        centre = v[rng.integers(len(v))]
+        near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
+        b = v[rng.choice(near, 3, replace=False)]
+        b = b + rng.normal(scale=np.radians(tol_deg) / 4, size=(3, 3))
+        pats.append(Pattern.from_vectors(b / np.linalg.norm(b, axis=1, keepdims=True),
+                                         np.radians(tol_deg)))
+    partners = [(idx.stars_in_window(p.cos_min[0, 2], p.cos_max[0, 2]),
+                 idx.stars_in_window(p.cos_min[1, 2], p.cos_max[1, 2])) for p in pats]
+    plain = heads_indexed(idx, pats, 10**7)
+    for got, want in zip(heads_indexed(idx, pats, 10**7, partners), plain, strict=True):
+        assert got.shape == want.shape
+        np.testing.assert_array_equal(got, want)
+    # the budget counts the whole first-pair window, as extend_indexed does
+    first = first_pair_indexed(idx, pats[0])
+    if len(first) > 1:
+        got = heads_indexed(idx, pats[:1], len(first) - 1, partners[:1])[0]
+        assert got == f"{len(first)} partial assignments at level 2"
