@@ -40,6 +40,7 @@ import hashlib
 import itertools
 import math
 import time
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -60,6 +61,7 @@ from starid.nstar import (
     closest_pair_first,
     extend_indexed,
     first_pair_indexed,
+    heads_indexed,
     match_faithful,
     match_indexed,
 )
@@ -75,6 +77,10 @@ from starid.verify import (
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
 _3_SQRT2 = 3.0 * math.sqrt(2.0)
+# 3-star patterns prepared together (see Solver._solve_at): the first batch of a solve is
+# small (a frame often succeeds within a few combinations, and patterns prepared past
+# the accepted one are wasted), later ones grow (a long search pays less overhead)
+_BATCHES = (4, 8, 16, 32)
 _CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
 
@@ -476,7 +482,38 @@ class Solver:
         # one of its own), so it is counted as tried but not matched — the swaps and
         # 4-star combinations after a failed Not-Modus are mostly such supersets
         no_match: list[list[int]] = [[] for _ in cams]
-        for pat_idx, path in self._patterns(len(xy)):
+        # 3-star patterns come in runs (the combination stage); a run is prepared in
+        # batches — windows, matches and quick checks of up to _BATCHES patterns at once,
+        # each with the trial number it will have — and then walked in order exactly as
+        # one pattern at a time would be. A 3-star pattern never holds a smaller no-match
+        # set, so nothing in a run depends on the outcome of an earlier pattern of it.
+        patterns = self._patterns(len(xy))
+        queue: deque[tuple[tuple[int, ...], str]] = deque()
+        # trial number → (sel, pattern, tol, assignments or a budget note, quick checks)
+        ready: dict[int, tuple] = {}
+        # per (focal guess, detection pair): the catalogue stars with a partner inside
+        # the pair's window (PatternIndex.stars_in_window), shared by the runs' patterns
+        pair_stars: dict[tuple[int, int, int], NDArray[np.bool_]] = {}
+        n_runs = 0
+        while True:
+            if not queue:
+                nxt = next(patterns, None)
+                if nxt is None:
+                    break
+                queue.append(nxt)
+                room = max(0, (budget - tried) // len(cams))
+                size = _BATCHES[min(n_runs, len(_BATCHES) - 1)]
+                while len(nxt[0]) == 3 and len(queue) < min(size, room):
+                    nxt = next(patterns, None)
+                    if nxt is None:
+                        break
+                    queue.append(nxt)
+                run = list(itertools.takewhile(lambda p: len(p[0]) == 3, queue))[:room]
+                if len(run) > 1:
+                    n_runs += 1
+                    self._prepare_run([p for p, _ in run], tried, cams, b_cams, tables,
+                                      prefixes, pair_stars, ready)
+            pat_idx, path = queue.popleft()
             if tried >= budget:
                 budget_note = f"{tried} pattern trials (the budget)"
                 break
@@ -485,15 +522,20 @@ class Solver:
                 tried += 1
                 if any(e & mask == e for e in no_match[ci]):
                     continue
-                sel = np.array(pat_idx)
-                sel = sel[closest_pair_first(tables[ci].angles[sel[:, None], sel])]
-                pattern, tol = tables[ci].pattern(sel, b_all)
-                ang = pattern.angles
-                try:
-                    assignments = self._match_cached(pattern, sel, ci, prefixes)
-                except WorkBudgetExceeded as e:
-                    budget_note = f"work budget exceeded ({e})"
+                pre = ready.pop(tried, None)
+                if pre is None:
+                    sel, pattern, tol = self._pattern_of(pat_idx, tables[ci], b_all)
+                    try:
+                        assignments = self._match_cached(pattern, sel, ci, prefixes)
+                    except WorkBudgetExceeded as e:
+                        assignments = str(e)
+                    quicks = None
+                else:
+                    sel, pattern, tol, assignments, quicks = pre
+                if isinstance(assignments, str):
+                    budget_note = f"work budget exceeded ({assignments})"
                     continue
+                ang = pattern.angles
                 if first_counter is None:
                     first_counter = len(assignments)
                 if len(assignments) == 0:
@@ -501,7 +543,8 @@ class Solver:
                     continue
                 chance = _Chance(ang, tol, tried, pattern.chirality != 0)
                 cands: list[Candidate] = []
-                quicks = self._quick_checks(b_all, sel, assignments, cam, chance)
+                if quicks is None:
+                    quicks = self._quick_checks(b_all, sel, assignments, cam, chance)
                 for a, quick in zip(assignments, quicks, strict=True):
                     if quick is None:
                         continue
@@ -533,6 +576,66 @@ class Solver:
                             ), tried
         reason = f"no match: {budget_note or f'{tried} patterns tried'}"
         return Solution(False, reason, matching_counter=first_counter or 0), tried
+
+    def _pattern_of(self, pat_idx: tuple[int, ...], table: _PairWindows, b_all: NDArray,
+                    ) -> tuple[NDArray[np.int64], Pattern, NDArray[np.float64]]:
+        """Detections of a pattern in matching order (closest pair first), its
+        :class:`Pattern` and its windows' half-widths at one focal guess."""
+        sel = np.array(pat_idx)
+        sel = sel[closest_pair_first(table.angles[sel[:, None], sel])]
+        pattern, tol = table.pattern(sel, b_all)
+        return sel, pattern, tol
+
+    def _prepare_run(self, run: list[tuple[int, ...]], tried: int, cams: list[Camera],
+                     b_cams: list[NDArray], tables: list[_PairWindows],
+                     prefixes: dict[tuple[int, ...], NDArray[np.int64] | str],
+                     pair_stars: dict[tuple[int, int, int], NDArray[np.bool_]],
+                     ready: dict[int, tuple]) -> None:
+        """Windows, matches and quick checks of a run of 3-star patterns, keyed in
+        ``ready`` by the trial number each (pattern, focal guess) will have when
+        :meth:`_solve_at` reaches it (``tried`` trials are done before the run). The
+        values are the ones the pattern-at-a-time path computes: the quick checks take
+        the trial number as their union-bound count, and are batched over the run."""
+        n_cams = len(cams)
+        batched_heads = not (self.faithful or self.n_bands > 1)
+        for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
+            shapes = [self._pattern_of(pat_idx, tables[ci], b_all) for pat_idx in run]
+            if batched_heads:
+                # the heads _match_cached would compute one by one, in one pass
+                new = {}
+                for sel, pattern, _ in shapes:
+                    key = (ci, pattern.chirality, *sel.tolist())
+                    if key not in prefixes:
+                        new[key] = pattern
+                partners = []
+                for key, pattern in new.items():
+                    ends = []
+                    for s, t in ((0, 2), (1, 2)):  # windows to the third star
+                        pair = (ci, *sorted((key[2 + s], key[2 + t])))
+                        if pair not in pair_stars:
+                            pair_stars[pair] = self.index.stars_in_window(
+                                pattern.cos_min[s, t], pattern.cos_max[s, t])
+                        ends.append(pair_stars[pair])
+                    partners.append((ends[0], ends[1]))
+                for key, part in zip(new, heads_indexed(self.index, list(new.values()),
+                                                        self.work_budget, partners),
+                                     strict=True):
+                    prefixes[key] = part
+            groups = []
+            for j, (sel, pattern, tol) in enumerate(shapes):
+                trial = tried + j * n_cams + ci + 1
+                try:
+                    assignments = self._match_cached(pattern, sel, ci, prefixes)
+                except WorkBudgetExceeded as e:
+                    ready[trial] = (sel, pattern, tol, str(e), None)
+                    continue
+                ready[trial] = (sel, pattern, tol, assignments, None)
+                if len(assignments):
+                    groups.append((trial, sel, assignments,
+                                   _Chance(pattern.angles, tol, trial, pattern.chirality != 0)))
+            quicks = self._quick_checks_many(b_all, cam, [g[1:] for g in groups])
+            for (trial, *_), q in zip(groups, quicks, strict=True):
+                ready[trial] = (*ready[trial][:4], q)
 
     def _solve_tracking(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
         """Tracking: predict the catalogue stars in the prior's field, associate the
@@ -764,7 +867,9 @@ class Solver:
         the K rotated detection sets from one KD-tree query, and the one-to-one
         association, pattern check and p_false are vectorised over K. A pattern of three
         stars has a handful of chance assignments, and checking them one by one cost
-        ~0.25 ms each in per-call overhead — most of a Not-Modus trial's time."""
+        ~0.25 ms each in per-call overhead — most of a Not-Modus trial's time. (Runs of
+        3-star patterns go through :meth:`_quick_checks_many`, which gives the same
+        values; this single-pattern form avoids its bookkeeping on the main pattern.)"""
         assigns = np.asarray(assigns, dtype=np.int64)
         n_k = len(assigns)
         n_det = len(b_all)
@@ -800,6 +905,76 @@ class Solver:
         p = e_trials * binomial_tail_many(k_other, n_det - len(sel), p_hit)
         for r, k in enumerate(kk):
             out[k] = (min(1.0, float(p[r])), R[k], float(e_trials[r]), det_k[k], cat_k[k])
+        return out
+
+    def _quick_checks_many(
+            self, b_all: NDArray, cam: Camera,
+            groups: list[tuple[NDArray, NDArray, _Chance]],
+    ) -> list[list[tuple[float, NDArray, float, NDArray, NDArray] | None]]:
+        """:meth:`_quick_check` for every assignment of several patterns of one size at
+        one focal guess — ``groups`` holds (sel, assignments (K, n), chance) per pattern.
+
+        Same results, candidate by candidate: the rotations come from one batched SVD,
+        all rotated detection sets from one KD-tree query, and the one-to-one
+        association, pattern check and p_false are vectorised over every candidate of
+        every pattern (each candidate's arithmetic is elementwise, so batching does not
+        change its values). A pattern of three stars has a handful of chance assignments;
+        checking them pattern by pattern cost ~0.5 ms each in per-call overhead — most of
+        a 3-star combination trial's time, hence the batching across patterns."""
+        n_det = len(b_all)
+        sizes = [len(g[1]) for g in groups]
+        out: list[list[tuple[float, NDArray, float, NDArray, NDArray] | None]] = [
+            [None] * s for s in sizes]
+        n_k = sum(sizes)
+        if n_k == 0:
+            return out
+        n = len(groups[0][0])
+        gid = np.repeat(np.arange(len(groups)), sizes)
+        sels = np.array([g[0] for g in groups], dtype=np.int64)[gid]  # (K, n)
+        assigns = np.concatenate([np.asarray(g[1], dtype=np.int64) for g in groups])
+        bs = b_all[sels]  # (K, n, 3)
+        vc = self.vectors[assigns]  # (K, n, 3)
+        u, sv, vt = np.linalg.svd(bs.transpose(0, 2, 1) @ vc)
+        # as _rotation_from_pairs: collinear → no rotation; a reflection is flipped
+        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
+        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
+        u[flip, :, 2] = -u[flip, :, 2]
+        R = u @ vt
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
+                                distance_upper_bound=2 * np.sin(radius / 2))
+        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
+        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
+        for k in range(n_k):
+            lookup[k, det_k[k]] = cat_k[k]
+        keeps = proper & np.all(np.take_along_axis(lookup, sels, axis=1) == assigns, axis=1)
+        if not keeps.any():
+            return out
+        kk = np.flatnonzero(keeps)
+        vck = vc[kk]
+        gk = gid[kk]
+        angles = np.array([g[2].angles for g in groups])[gk]
+        tols = np.array([g[2].tol for g in groups])[gk]
+        resid = np.abs(angles - np.arccos(np.clip(vck @ vck.transpose(0, 2, 1), -1.0, 1.0)))
+        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
+        tol_fit = np.minimum(np.maximum(resid, floor), tols)
+        # the chance estimate's geometry is the pattern's own: one call per pattern
+        e_trials = np.empty(len(kk))
+        cuts = np.searchsorted(gk, np.arange(len(groups) + 1))
+        for g, (_, _, chance) in enumerate(groups):
+            a, b = cuts[g], cuts[g + 1]
+            if a < b:
+                e_trials[a:b] = chance.trials * expected_chance_patterns_many(
+                    chance.angles, tol_fit[a:b], len(self.vectors), chance.mirror_checked,
+                    chance.geometry)
+        k_other = np.array([len(det_k[k]) for k in kk]) - n
+        p_hit = np.array([self._p_hit(int(assigns[k, 0]), radius) for k in kk])
+        p = e_trials * binomial_tail_many(k_other, n_det - n, p_hit)
+        starts = np.cumsum([0, *sizes])
+        for r, k in enumerate(kk.tolist()):
+            g = int(gid[k])
+            out[g][k - starts[g]] = (min(1.0, float(p[r])), R[k], float(e_trials[r]),
+                                     det_k[k], cat_k[k])
         return out
 
     def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,

@@ -15,9 +15,11 @@ from starid import rotations as rot
 from starid.index import PatternIndex
 from starid.nstar import (
     Pattern,
+    WorkBudgetExceeded,
     closest_pair_first,
     extend_indexed,
     first_pair_indexed,
+    heads_indexed,
     match_faithful,
     match_indexed,
 )
@@ -356,3 +358,93 @@ def test_simulation_eta_matches_tab_8_22_to_8_28(mag, tol, published, bound):
     cell = simulate_cell(renken_catalog(mag), mag, tol, 300, seed=42)
     assert abs(cell.eta - published) <= bound, cell
     assert cell.wrong_unique == 0 or mag < 5.4  # AC-24: no miss-matches from 5.4 on
+
+
+@given(seed=st.integers(0, 10**6), tol_deg=st.floats(0.05, 2.5), n_pat=st.integers(1, 6))
+@settings(max_examples=30, deadline=None)
+def test_heads_of_many_patterns_at_once_equal_one_by_one(small_sky, seed, tol_deg, n_pat):
+    """The solver places the third star of a whole run of 3-star patterns in one pass:
+    each pattern gets the rows, in the order, that its own head look-up gives."""
+    v, idx = small_sky
+    rng = np.random.default_rng(seed)
+    pats = []
+    for _ in range(n_pat):
+        centre = v[rng.integers(len(v))]
+        near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
+        sel = rng.choice(near, 3, replace=False)
+        b = v[sel] + rng.normal(scale=np.radians(tol_deg) / 4, size=(3, 3))
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        pat = Pattern.from_vectors(b, np.radians(tol_deg))
+        if rng.random() < 0.3:  # an undecided mirror check
+            pat = Pattern(pat.angles, pat.cos_min, pat.cos_max, 0, pat.delta_max_rad)
+        pats.append(pat)
+    many = heads_indexed(idx, pats, 10**7)
+    for pat, got in zip(pats, many, strict=True):
+        want = extend_indexed(idx, pat, first_pair_indexed(idx, pat), 10**7, upto=3)
+        assert got.shape == (len(want), 3)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_heads_over_the_work_budget_carry_the_message_extend_would_raise(small_sky):
+    v, idx = small_sky
+    trio = np.argsort(-(v @ v[0]))[:3]  # star 0 and its two nearest neighbours
+    wide = Pattern.from_vectors(v[trio], np.radians(3.0))
+    first = first_pair_indexed(idx, wide)
+    budget = len(first) - 1
+    assert budget > 0
+    with pytest.raises(WorkBudgetExceeded) as e:
+        extend_indexed(idx, wide, first, budget, upto=3)
+    narrow = Pattern.from_vectors(v[trio], np.radians(0.01))
+    got = heads_indexed(idx, [wide, narrow], budget)
+    assert got[0] == str(e.value)
+    np.testing.assert_array_equal(
+        got[1], extend_indexed(idx, narrow, first_pair_indexed(idx, narrow), budget, upto=3))
+
+
+def test_neighbours_in_group_windows_equal_one_window_per_call(small_sky):
+    v, idx = small_sky
+    rng = np.random.default_rng(4)
+    counts = np.array([0, 7, 0, 40, 13, 0])
+    stars = rng.integers(0, len(v), counts.sum())
+    ang = np.radians(rng.uniform(1.0, 40.0, len(counts)))
+    ang[3] = np.radians(60.0)  # a window beyond the index: no neighbours
+    cmin, cmax = np.cos(ang + 0.01), np.cos(ang - 0.01)
+    parent, nbr = idx.neighbours_in_windows(stars, counts, cmin, cmax)
+    start = 0
+    want_p, want_n = [], []
+    for g, c in enumerate(counts):
+        p, n = idx.neighbours_in_window(stars[start:start + c], float(cmin[g]), float(cmax[g]))
+        want_p.append(p + start)
+        want_n.append(n)
+        start += c
+    np.testing.assert_array_equal(parent, np.concatenate(want_p))
+    np.testing.assert_array_equal(nbr, np.concatenate(want_n))
+    assert len(parent) > 0
+
+
+@given(seed=st.integers(0, 10**6), tol_deg=st.floats(0.05, 2.5))
+@settings(max_examples=30, deadline=None)
+def test_heads_skip_first_pairs_without_partners_and_lose_nothing(small_sky, seed, tol_deg):
+    """With the partner masks of the windows to the third star, first pairs that cannot
+    be extended are dropped before the look-up: the heads are unchanged."""
+    v, idx = small_sky
+    rng = np.random.default_rng(seed)
+    pats = []
+    for _ in range(4):
+        centre = v[rng.integers(len(v))]
+        near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
+        b = v[rng.choice(near, 3, replace=False)]
+        b = b + rng.normal(scale=np.radians(tol_deg) / 4, size=(3, 3))
+        pats.append(Pattern.from_vectors(b / np.linalg.norm(b, axis=1, keepdims=True),
+                                         np.radians(tol_deg)))
+    partners = [(idx.stars_in_window(p.cos_min[0, 2], p.cos_max[0, 2]),
+                 idx.stars_in_window(p.cos_min[1, 2], p.cos_max[1, 2])) for p in pats]
+    plain = heads_indexed(idx, pats, 10**7)
+    for got, want in zip(heads_indexed(idx, pats, 10**7, partners), plain, strict=True):
+        assert got.shape == want.shape
+        np.testing.assert_array_equal(got, want)
+    # the budget counts the whole first-pair window, as extend_indexed does
+    first = first_pair_indexed(idx, pats[0])
+    if len(first) > 1:
+        got = heads_indexed(idx, pats[:1], len(first) - 1, partners[:1])[0]
+        assert got == f"{len(first)} partial assignments at level 2"

@@ -152,6 +152,7 @@ def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
     xy, _ = sky_frame(cat, cam, rng, n_false=8)
     b_all = cam.pixels_to_vectors(xy[:30])
     seen = rejected = 0
+    groups, singles = [], []
     for trio in [(0, 1, 2), (0, 3, 5), (1, 4, 7), (2, 6, 9), (3, 8, 10), (5, 7, 11)]:
         sel = np.array(trio)
         ang = np.arccos(np.clip(b_all[sel] @ b_all[sel].T, -1, 1))
@@ -164,6 +165,8 @@ def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
         chance = _Chance(ang, tol, 17, pattern.chirality != 0)
         batch = solver._quick_checks(b_all, sel, assigns, cam, chance)
         assert len(batch) == len(assigns)
+        groups.append((sel, assigns, chance))
+        singles.append(batch)
         for a, got in zip(assigns, batch, strict=True):
             want = solver._quick_check(b_all, sel, a, cam, chance)
             seen += 1
@@ -176,6 +179,43 @@ def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
             np.testing.assert_array_equal(got[3], want[3])
             np.testing.assert_array_equal(got[4], want[4])
     assert seen >= 10 and 0 < rejected < seen  # both outcomes were compared
+    # several patterns in one batch (a run of the combination stage): the same values
+    for many, one in zip(solver._quick_checks_many(b_all, cam, groups), singles, strict=True):
+        assert len(many) == len(one)
+        for got, want in zip(many, one, strict=True):
+            assert (got is None) == (want is None)
+            if want is not None:
+                assert got[0] == want[0] and got[2] == want[2]
+                np.testing.assert_array_equal(got[1], want[1])
+                np.testing.assert_array_equal(got[3], want[3])
+                np.testing.assert_array_equal(got[4], want[4])
+
+
+def test_runs_of_three_star_patterns_prepared_together_change_no_result(
+        solver, cat, cam, monkeypatch):
+    """The combination stage prepares its 3-star patterns in batches (matches and quick
+    checks of several patterns at once, each with its own trial number): the solutions
+    are those of trying one pattern at a time — path, trials, matches and p_false."""
+    rng = np.random.default_rng(44)
+    frames = [sky_frame(cat, cam, rng, n_false=8)[0] for _ in range(10)]
+    frames += [rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2))]
+    runs: list[int] = []
+    real = type(solver)._prepare_run
+
+    def spy(self, run, *args):
+        runs.append(len(run))
+        return real(self, run, *args)
+
+    monkeypatch.setattr(type(solver), "_prepare_run", spy)
+    batched = [solver.solve(xy) for xy in frames]
+    assert sum(runs) > 2 * len(frames)  # the combination stage ran, in batches
+    monkeypatch.setattr(type(solver), "_prepare_run", lambda self, *args: None)
+    for xy, a in zip(frames, batched, strict=True):
+        b = solver.solve(xy)
+        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches, a.matching_counter) \
+            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches, b.matching_counter)
+        assert a.p_false == b.p_false
+        assert [c.p_false for c in a.candidates] == [c.p_false for c in b.candidates]
 
 
 def test_batched_chance_estimates_equal_the_single_ones():
