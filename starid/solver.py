@@ -379,22 +379,25 @@ class Solver:
             xy = arr[:, :2]
         if len(xy) < min_count:
             return xy, f"too few detections ({len(xy)} < {min_count})"
-        # cheap tests first (a sort for duplicates), details only when they fail: this
-        # runs per frame in the tracking loop
-        if not np.isfinite(xy).all():
-            bad = ~np.isfinite(xy).all(axis=1)
-            return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at row " \
-                       f"{int(np.flatnonzero(bad)[0])}"
-        use = xy[: self.max_detections]
-        xs = np.sort(use[:, 0])
+        # cheap tests first, details only when they fail (this runs per frame in the
+        # tracking loop): all coordinates within the frame plus a slack — a NaN fails
+        # every comparison, so it lands in the detailed checks too
         slack = 0.5 * max(self.camera.width, self.camera.height)
-        lo_x, hi_x = float(xs[0]), float(xs[-1])
-        lo_y, hi_y = float(use[:, 1].min()), float(use[:, 1].max())
-        if min(lo_x, lo_y) < -0.5 - slack or hi_x > self.camera.width - 0.5 + slack \
-                or hi_y > self.camera.height - 0.5 + slack:
+        lo_x, lo_y = xy.min(axis=0).tolist()
+        hi_x, hi_y = xy.max(axis=0).tolist()
+        use = xy[: self.max_detections]
+        if not (lo_x >= -0.5 - slack and lo_y >= -0.5 - slack
+                and hi_x <= self.camera.width - 0.5 + slack
+                and hi_y <= self.camera.height - 0.5 + slack):
+            if not np.isfinite(xy).all():
+                bad = ~np.isfinite(xy).all(axis=1)
+                return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at " \
+                           f"row {int(np.flatnonzero(bad)[0])}"
             outside = ~self.camera.in_frame(use, margin=-slack)
-            return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies far " \
-                       "outside the frame"
+            if outside.any():
+                return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies " \
+                           "far outside the frame"
+        xs = np.sort(use[:, 0])
         # (inside the frame no difference overflows: no errstate needed on this hot path)
         gap = float(np.min(xs[1:] - xs[:-1])) if len(xs) > 1 else np.inf
         if gap < 1e-6:
@@ -1104,8 +1107,23 @@ class Solver:
         (cam ← icrs), ``margin_rad`` beyond its edges."""
         half = 0.5 * math.radians(cam.diagonal_fov_deg) + margin_rad + 1e-3
         idx, vec = self._cone(R[2], half)  # R[2]: the camera +z axis in ICRS
-        pxy = cam.vectors_to_pixels(vec @ R.T)
-        inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
+        ideal = cam._ideal_pinhole
+        if ideal is None:
+            pxy = cam.vectors_to_pixels(vec @ R.T)
+            inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
+            return pxy[inside], idx[inside]
+        # an undistorted pinhole: rotation and projection as one homogeneous matrix
+        # (u·z, v·z, z) = H R r — per frame, a few numpy calls instead of a dozen
+        (a00, a01), (a10, a11) = ideal[2].tolist()
+        c0, c1 = ideal[3].tolist()
+        H = np.array([[a00, a10, c0], [a01, a11, c1], [0.0, 0.0, 1.0]])
+        h = vec @ (H @ R).T
+        z = h[:, 2]
+        pxy = h[:, :2] / z[:, None]
+        m = -margin_rad / cam.pixel_scale_rad
+        lo, hi_x, hi_y = -0.5 + m, cam.width - 0.5 - m, cam.height - 0.5 - m
+        u, v = pxy[:, 0], pxy[:, 1]
+        inside = (z > 0) & (u >= lo) & (u <= hi_x) & (v >= lo) & (v <= hi_y)
         return pxy[inside], idx[inside]
 
     def _cone(self, axis: NDArray, half_rad: float) -> tuple[NDArray[np.int64], NDArray]:
