@@ -139,3 +139,23 @@ def test_a_replay_killed_mid_run_leaves_a_readable_log(rendered, tmp_path):
     frames = [m for m in msgs if m.topic == "/estimate/state"]
     assert len(frames) >= 5  # everything up to the last complete chunk
     assert reader.problem is not None  # and it says where the file ended
+
+
+def _chunk_compressions(path):
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        return {ci.compression for ci in make_reader(f).get_summary().chunk_indexes}
+
+
+def test_replay_leaves_video_uncompressed_and_compresses_other_logs(rendered, tmp_path):
+    # noisy video gains ~2 % from LZ4 for ~0.4 ms a frame: "auto" writes it raw
+    _, sim = rendered
+    replay(sim, tmp_path / "video.mcap", progress=False)
+    assert _chunk_compressions(tmp_path / "video.mcap") == {""}
+    centroids = tmp_path / "centroids.mcap"
+    simulate(oedipus(duration_s=1.0, seed=5, render=False), centroids)
+    replay(centroids, tmp_path / "c_out.mcap", progress=False)
+    assert _chunk_compressions(tmp_path / "c_out.mcap") == {"lz4"}
+    replay(sim, tmp_path / "z.mcap", progress=False, compression="zstd")
+    assert _chunk_compressions(tmp_path / "z.mcap") == {"zstd"}
