@@ -879,19 +879,8 @@ class Solver:
         out: list[tuple[float, NDArray, float, NDArray, NDArray] | None] = [None] * n_k
         bs = b_all[sel]
         vc = self.vectors[assigns]  # (K, n, 3)
-        u, sv, vt = np.linalg.svd(bs.T @ vc)
-        # as _rotation_from_pairs: collinear → no rotation; a reflection is flipped
-        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
-        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
-        u[flip, :, 2] = -u[flip, :, 2]
-        R = u @ vt
-        radius = self._match_radius_px() * cam.pixel_scale_rad
-        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
-                                distance_upper_bound=2 * np.sin(radius / 2))
-        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
-        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
-        for k in range(n_k):
-            lookup[k, det_k[k]] = cat_k[k]
+        proper, R, radius, det_k, cat_k, lookup = self._rotate_and_associate(
+            bs.T @ vc, b_all, cam)
         keeps = proper & np.all(lookup[:, sel] == assigns, axis=1)
         if not keeps.any():
             return out
@@ -909,6 +898,27 @@ class Solver:
         for r, k in enumerate(kk):
             out[k] = (min(1.0, float(p[r])), R[k], float(e_trials[r]), det_k[k], cat_k[k])
         return out
+
+    def _rotate_and_associate(self, B: NDArray, b_all: NDArray, cam: Camera) -> tuple:
+        """For K candidates' attitude profile matrices ``B`` (K, 3, 3): each rotation
+        (SVD; ``proper`` False where collinear, a reflection flipped — as
+        :func:`_rotation_from_pairs`), every detection rotated into ICRS and associated
+        one-to-one in one KD-tree query. Returns (proper, R, match radius, detection
+        indices per k, catalogue indices per k, (K, n_det) lookup with −1 = none)."""
+        n_k, n_det = len(B), len(b_all)
+        u, sv, vt = np.linalg.svd(B)
+        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
+        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
+        u[flip, :, 2] = -u[flip, :, 2]
+        R = u @ vt
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
+                                distance_upper_bound=2 * np.sin(radius / 2))
+        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
+        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
+        for k in range(n_k):
+            lookup[k, det_k[k]] = cat_k[k]
+        return proper, R, radius, det_k, cat_k, lookup
 
     def _quick_checks_many(
             self, b_all: NDArray, cam: Camera,
@@ -937,19 +947,8 @@ class Solver:
         assigns = np.concatenate([np.asarray(g[1], dtype=np.int64) for g in groups])
         bs = b_all[sels]  # (K, n, 3)
         vc = self.vectors[assigns]  # (K, n, 3)
-        u, sv, vt = np.linalg.svd(bs.transpose(0, 2, 1) @ vc)
-        # as _rotation_from_pairs: collinear → no rotation; a reflection is flipped
-        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
-        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
-        u[flip, :, 2] = -u[flip, :, 2]
-        R = u @ vt
-        radius = self._match_radius_px() * cam.pixel_scale_rad
-        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
-                                distance_upper_bound=2 * np.sin(radius / 2))
-        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
-        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
-        for k in range(n_k):
-            lookup[k, det_k[k]] = cat_k[k]
+        proper, R, radius, det_k, cat_k, lookup = self._rotate_and_associate(
+            bs.transpose(0, 2, 1) @ vc, b_all, cam)
         keeps = proper & np.all(np.take_along_axis(lookup, sels, axis=1) == assigns, axis=1)
         if not keeps.any():
             return out
