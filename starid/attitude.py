@@ -221,12 +221,12 @@ def refine_streaked(q_cam_icrs: ArrayLike, b: NDArray[np.float64], r: NDArray[np
     # residual e = b − R r ≈ δθ × p: along u_a it reads δθ·u_c, across (u_c) −δθ·u_a
     wu_c = w_a[:, None] * u_c
     cov = _inverse_symmetric((wu_c.T @ u_c + w_c * (u_a.T @ u_a)).tolist())
-    for _ in range(iterations + 1):
+    for step in range(iterations + 1):
         e = r @ rot.to_matrix(q).T
         np.subtract(b, e, out=e)
         ea = np.einsum("ij,ij->i", e, u_a)
         ec = np.einsum("ij,ij->i", e, u_c)
-        if _ == iterations:
+        if step == iterations:  # the residuals of the final attitude
             break
         g = (ea @ wu_c - w_c * (ec @ u_a)).tolist()
         d = [sum(cov[k][m] * g[m] for m in range(3)) for k in range(3)]
@@ -274,8 +274,8 @@ def _exp_times(x: float, y: float, z: float, qw: float, qx: float, qy: float,
     """exp((x, y, z)) ⊗ q in plain floats, normalised (numpy's per-call overhead would
     dominate at this size); small angles by the half-angle series."""
     a2 = x * x + y * y + z * z
-    c, k = 1.0 - a2 / 8.0, 0.5 - a2 / 48.0  # exact to ~1e-20 below 1e-3 rad
-    if a2 > 1e-6:
+    c, k = 1.0 - a2 / 8.0, 0.5 - a2 / 48.0  # next terms < 3e-19 below 1e-4 rad
+    if a2 > 1e-8:
         a = math.sqrt(a2)
         c, k = math.cos(0.5 * a), math.sin(0.5 * a) / a
     x, y, z = k * x, k * y, k * z
