@@ -38,52 +38,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from adfusion.estimator import Estimator
+from adfusion.faults import WrongMatchInjector
 from adfusion.smoother import SmootherInput, smooth
 from sensors import scenarios
 from starid import rotations as rot
-from starid.attitude import wahba
 from starid.catalog import Catalog
 from starid.solver import Solver
-
-
-class WrongMatchInjector:
-    """A solver whose every ``every``-th identified frame carries one wrong star match.
-
-    The frame's first (brightest) match is re-paired with the nearest other catalogue star
-    not already matched, and the fix is refitted (Wahba) with the wrong pair, keeping the
-    solver's covariance — as a wrong match that passed verification would look.
-    """
-
-    def __init__(self, solver: Solver, every: int = 50) -> None:
-        self.solver, self.every = solver, int(every)
-        self.camera, self.catalog = solver.camera, solver.catalog
-        self._vec = np.asarray(solver.catalog.vectors)
-        self._ids = np.asarray(solver.catalog.ids)
-        self._row = {int(i): k for k, i in enumerate(self._ids)}
-        self.count = 0
-        self.injected: list[int] = []  # catalogue ids that were mis-matched
-
-    def solve(self, detections: Any, prior: Any = None) -> Any:
-        sol = self.solver.solve(detections, prior=prior)
-        if not sol.ok or len(sol.matches) < 3:
-            return sol
-        self.count += 1
-        if self.count % self.every:
-            return sol
-        xy = np.asarray(getattr(detections, "xy", detections), dtype=np.float64)[:, :2]
-        matches = list(sol.matches)
-        d0, id0 = matches[0]
-        taken = {self._row[int(i)] for _, i in matches}
-        dots = self._vec @ self._vec[self._row[int(id0)]]
-        dots[list(taken)] = -2.0
-        wrong = int(self._ids[int(np.argmax(dots))])
-        matches[0] = (d0, wrong)
-        cam = sol.camera if sol.camera is not None else self.camera
-        b = cam.pixels_to_vectors(xy[[d for d, _ in matches]])
-        r = self._vec[[self._row[int(i)] for _, i in matches]]
-        self.injected.append(int(id0))
-        fit = wahba(b, r, sigma_rad=cam.pixel_scale_rad)
-        return dataclasses.replace(sol, matches=matches, q_cam_icrs=fit.q_cam_icrs)
 
 
 def _attitude_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:
@@ -145,7 +105,7 @@ def record(sc: scenarios.Scenario, *, video_only: bool = False,
             p_filt.append(None if est.filter is None else est.filter.P[:3, :3])
     name = f"{sc.name}{' video-only' if video_only else ''}"
     return Recording(name, inp, np.array(q_true), q_filt, p_filt, time.perf_counter() - t0,
-                     len(solver.injected) if inject_every else 0)
+                     len(solver.wrong) if inject_every else 0)
 
 
 def score(r: Recording, **smooth_kw: Any) -> dict[str, Any]:

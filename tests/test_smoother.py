@@ -3,13 +3,12 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import gtsam
 import numpy as np
 import pytest
 
 from adfusion.estimator import Estimator
+from adfusion.faults import WrongMatchInjector
 from adfusion.pipeline import replay, simulate
 from adfusion.smoother import (
     SmootherError,
@@ -21,7 +20,6 @@ from adfusion.smoother import (
 from logs import McapLogReader
 from sensors.scenarios import leo, oedipus
 from starid import rotations as rot
-from starid.attitude import wahba
 from starid.catalog import Catalog
 from starid.solver import Solver
 
@@ -126,44 +124,13 @@ def test_an_unobservable_attitude_raises_instead_of_guessing():
 # --- short flights, scored against the truth ----------------------------------------------
 
 
-class WrongMatches:
-    """A solver whose every ``every``-th identified frame carries one wrong star match (its
-    first match re-paired with the nearest other catalogue star, the fix refitted with it)."""
-
-    def __init__(self, solver: Solver, every: int) -> None:
-        self.solver, self.every, self.count = solver, every, 0
-        self.camera, self.catalog = solver.camera, solver.catalog
-        self.vec, self.ids = np.asarray(solver.catalog.vectors), np.asarray(solver.catalog.ids)
-        self.row = {int(i): k for k, i in enumerate(self.ids)}
-        self.wrong: list[int] = []  # the catalogue ids wrongly matched
-
-    def solve(self, detections, prior=None):
-        sol = self.solver.solve(detections, prior=prior)
-        if not sol.ok or len(sol.matches) < 3:
-            return sol
-        self.count += 1
-        if self.count % self.every:
-            return sol
-        matches = list(sol.matches)
-        d0, id0 = matches[0]
-        dots = self.vec @ self.vec[self.row[id0]]
-        dots[[self.row[i] for _, i in matches]] = -2.0
-        matches[0] = (d0, int(self.ids[np.argmax(dots)]))
-        self.wrong.append(matches[0][1])
-        xy = np.asarray(detections, dtype=float)[:, :2]
-        b = self.camera.pixels_to_vectors(xy[[d for d, _ in matches]])
-        r = self.vec[[self.row[i] for _, i in matches]]
-        q = wahba(b, r, self.camera.pixel_scale_rad).q_cam_icrs
-        return dataclasses.replace(sol, matches=matches, q_cam_icrs=q)
-
-
 def fly(sc, *, video_only=False, wrong_every=None, **smooth_kw):
     """Filter + smoother over a scenario; per-frame errors (deg) and attitude NEES."""
     cfg = sc.config
     cat = Catalog.hipparcos(mag_limit=cfg["mag_limit"], epoch=cfg["catalog"]["epoch"])
     solver = Solver(cat, sc.camera, centroid_sigma_px=0.5)
     if wrong_every:
-        solver = WrongMatches(solver, wrong_every)
+        solver = WrongMatchInjector(solver, wrong_every)
     g = cfg["gyro"]
     est = Estimator(solver, sc.q_body_cam, arw_rad_sqrt_s=g["arw_rad_sqrt_s"],
                     rrw_rad_s_sqrt_s=g["rrw_rad_s_sqrt_s"], video_only=video_only)
