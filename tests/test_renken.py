@@ -83,6 +83,22 @@ def small_sky():
     return v, PatternIndex.from_vectors(v, np.radians(50))
 
 
+def noisy_pattern(v: np.ndarray, seed: int, n: int, tol_deg: float,
+                  ) -> tuple[Pattern, np.ndarray, np.ndarray] | None:
+    """n stars of ``v`` within 20° of a random one, with noise inside the tolerance: (the
+    pattern, the stars' indices, their noisy directions); None when the neighbourhood
+    holds fewer than n stars."""
+    rng = np.random.default_rng(seed)
+    centre = v[rng.integers(len(v))]
+    near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
+    if len(near) < n:
+        return None
+    sel = rng.choice(near, n, replace=False)
+    b = v[sel] + rng.normal(scale=np.radians(tol_deg) / 4, size=(n, 3))
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    return Pattern.from_vectors(b, np.radians(tol_deg)), sel, b
+
+
 def band_masks(v: np.ndarray, n_bands: int, overlap: float) -> list[np.ndarray]:
     dec = np.arcsin(np.clip(v[:, 2], -1, 1))
     edges = np.arcsin(np.linspace(1, -1, n_bands + 1))
@@ -96,15 +112,10 @@ def band_masks(v: np.ndarray, n_bands: int, overlap: float) -> list[np.ndarray]:
 def test_ac13_faithful_and_indexed_give_identical_match_sets(small_sky, seed, n, tol_deg,
                                                               n_bands):
     v, idx = small_sky
-    rng = np.random.default_rng(seed)
-    centre = v[rng.integers(len(v))]
-    near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
-    if len(near) < n:
+    drawn = noisy_pattern(v, seed, n, tol_deg)
+    if drawn is None:
         return
-    sel = rng.choice(near, n, replace=False)
-    b = v[sel] + rng.normal(scale=np.radians(tol_deg) / 4, size=(n, 3))
-    b /= np.linalg.norm(b, axis=1, keepdims=True)
-    pat = Pattern.from_vectors(b, np.radians(tol_deg))
+    pat, sel, b = drawn
     fast = set_of(match_indexed(idx, pat, max_partials=10**7))
     ref = set_of(match_faithful(v, pat, dec_check=True))
     assert fast == ref
@@ -141,15 +152,10 @@ def test_extending_a_kept_pattern_head_gives_what_match_indexed_gives(small_sky,
     """The solver keeps the partials of a pattern's first three stars and extends them
     for every pattern sharing that head: same rows, in the same order, as one call."""
     v, idx = small_sky
-    rng = np.random.default_rng(seed)
-    centre = v[rng.integers(len(v))]
-    near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
-    if len(near) < n:
+    drawn = noisy_pattern(v, seed, n, tol_deg)
+    if drawn is None:
         return
-    sel = rng.choice(near, n, replace=False)
-    b = v[sel] + rng.normal(scale=np.radians(tol_deg) / 4, size=(n, 3))
-    b /= np.linalg.norm(b, axis=1, keepdims=True)
-    pat = Pattern.from_vectors(b, np.radians(tol_deg))
+    pat = drawn[0]
     whole = match_indexed(idx, pat, max_partials=10**7)
     head = extend_indexed(idx, pat, first_pair_indexed(idx, pat), 10**7, upto=3)
     assert head.shape[1] == 3
