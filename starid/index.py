@@ -92,16 +92,6 @@ class PatternIndex:
         hi = max(lo, int(np.searchsorted(neg, -cos_min, side="left")))
         return self.pair_i[lo:hi].astype(np.int64), self.pair_j[lo:hi].astype(np.int64)
 
-    def stars_in_window(self, cos_min: float, cos_max: float) -> NDArray[np.bool_]:
-        """Mask of the stars with at least one partner at a separation inside the window
-        (``cos_min < cos < cos_max``): a necessary condition for a star to take either
-        end of an image pair with that window, cheap to test for many candidates."""
-        i, j = self.pairs_in_window(cos_min, cos_max)
-        mask = np.zeros(len(self.vectors), dtype=bool)
-        mask[i] = True
-        mask[j] = True
-        return mask
-
     def neighbours_in_window(
         self, stars: IntArray, cos_min: NDArray[np.float64] | float,
         cos_max: NDArray[np.float64] | float,
@@ -147,49 +137,8 @@ class PatternIndex:
             keep = (c > cmin_a[parent]) & (c < cmax_a[parent])
         return parent[keep], self.nbr_idx[pos[keep]].astype(np.int64)
 
-    def neighbours_in_windows(
-        self, stars: IntArray, counts: IntArray, cos_min: NDArray[np.float64],
-        cos_max: NDArray[np.float64],
-    ) -> tuple[IntArray, IntArray]:
-        """:meth:`neighbours_in_window` for G groups of stars at once: the first
-        ``counts[g]`` stars of ``stars`` use window g, the next ``counts[g + 1]`` window
-        g + 1, and so on. Same result, group by group, as a scalar call per group (the
-        same bins, the same exact filter, rows in the same order): a caller matching many
-        small patterns pays the per-call overhead once."""
-        stars = np.asarray(stars, dtype=np.int64)
-        if len(stars) == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        nb = self.nbr_bin.shape[1] - 1
-        step = self.max_sep_rad / nb
-        # per group, as the scalar path: windows are cosines of angles in [0, π]
-        b0 = [min(max(int(math.acos(c) / step), 0), nb) for c in np.asarray(cos_max).tolist()]
-        b1 = [min(max(int(math.acos(c) / step) + 1, 0), nb)
-              for c in np.asarray(cos_min).tolist()]
-        # flat look-ups (row·(B + 1) + bin) into the bin table: half the cost of 2-D
-        # fancy indexing over ~10⁴ scattered rows
-        key = stars * (nb + 1)
-        flat = self._nbr_bin_flat
-        lo = flat[key + np.repeat(b0, counts)].astype(np.int64)
-        n_cand = flat[key + np.repeat(b1, counts)] - lo
-        total = int(n_cand.sum())
-        if total == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        # position of each candidate in the CSR arrays: its row start plus its rank
-        ends = np.cumsum(n_cand)
-        pos = np.arange(total) + np.repeat(lo - ends + n_cand, n_cand)
-        c = self.nbr_cos[pos]
-        # each group's window, repeated over its candidates
-        group_ends = np.concatenate([[0], ends])[np.cumsum(counts)]
-        per_group = np.diff(group_ends, prepend=0)
-        cmin = np.repeat(np.asarray(cos_min, dtype=np.float64), per_group)
-        cmax = np.repeat(np.asarray(cos_max, dtype=np.float64), per_group)
-        keep = np.flatnonzero((c > cmin) & (c < cmax))
-        parent = np.repeat(np.arange(len(stars)), n_cand)[keep]
-        return parent, self.nbr_idx[pos[keep]].astype(np.int64)
-
     def __post_init__(self) -> None:
         object.__setattr__(self, "_neg_pair_cos", -self.pair_cos)  # ascending search key
-        object.__setattr__(self, "_nbr_bin_flat", self.nbr_bin.reshape(-1))
 
 
 def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:

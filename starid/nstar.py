@@ -42,7 +42,6 @@ __all__ = [
     "closest_pair_first",
     "extend_indexed",
     "first_pair_indexed",
-    "heads_indexed",
     "match_faithful",
     "match_indexed",
 ]
@@ -188,10 +187,9 @@ def extend_indexed(
     """Levels ``assign.shape[1]`` … ``upto − 1`` (default: to the pattern's end) of
     :func:`match_indexed`, from the partial assignments of the first stars.
 
-    Split out so that a caller trying many patterns can keep the partials of a pattern
-    head (the first three stars hold nearly all the work) and extend them for every
-    pattern sharing that head: the windows of a head depend on its own pairs only, so the
-    result is the one :func:`match_indexed` computes (same rows, same order).
+    (Partials of a pattern head, extended, give what :func:`match_indexed` gives: same
+    rows, same order.) The solver's compiled matcher (:func:`starid.kernels.match`)
+    reproduces these rows.
     """
     n = pattern.n if upto is None else upto
     v = index.vectors
@@ -218,82 +216,9 @@ def extend_indexed(
     return assign
 
 
-def heads_indexed(
-    index: PatternIndex, patterns: list[Pattern], max_partials: int = 200_000,
-    partners: list[tuple[NDArray[np.bool_], NDArray[np.bool_]]] | None = None,
-) -> list[IntArray | str]:
-    """``extend_indexed(index, p, first_pair_indexed(index, p), max_partials, upto=3)``
-    for many patterns at once: the assignments (K, 3) of each pattern's first three
-    stars — same rows, same order — or, for a pattern whose first pair's window holds
-    more than ``max_partials`` partial assignments, the message
-    :class:`WorkBudgetExceeded` would carry.
-
-    The third star of every pattern is placed in one vectorised pass (one neighbour
-    look-up, one distance check, one mirror check over all patterns' partials): a
-    3-star pattern's match is a few small array operations, and doing them pattern by
-    pattern was mostly per-call overhead.
-
-    ``partners`` optionally gives, per pattern, :meth:`PatternIndex.stars_in_window` of
-    its (0, 2) and (1, 2) windows: a first pair (a, b) can only be extended if a has
-    some partner in the first window and b one in the second, so the other pairs —
-    typically ~95 % — are dropped before the look-up. Dropping partials that extend to
-    nothing leaves the result (rows and order) unchanged; the work budget still counts
-    the whole first-pair window."""
-    out: list[IntArray | str] = [np.zeros((0, 3), dtype=np.int64) for _ in patterns]
-    live: list[int] = []
-    firsts: list[IntArray] = []
-    for g, p in enumerate(patterns):
-        if partners is None:
-            first = first_pair_indexed(index, p)
-            n_first = len(first)
-        else:
-            i, j = index.pairs_in_window(p.cos_min[0, 1], p.cos_max[0, 1])
-            n_first = 2 * len(i)
-            if n_first <= max_partials:
-                m02, m12 = partners[g]
-                fwd = m02[i] & m12[j]  # rows (i, j), then the swapped rows (j, i)
-                bwd = m02[j] & m12[i]
-                first = np.concatenate([np.stack([i[fwd], j[fwd]], axis=1),
-                                        np.stack([j[bwd], i[bwd]], axis=1)])
-        if n_first > max_partials:
-            out[g] = f"{n_first} partial assignments at level 2"
-        elif len(first):
-            live.append(g)
-            firsts.append(first)
-    if not live:
-        return out
-    counts = np.array([len(f) for f in firsts])
-    assign = np.concatenate(firsts)
-    cmin = np.array([[patterns[g].cos_min[0, 2], patterns[g].cos_min[1, 2]] for g in live])
-    cmax = np.array([[patterns[g].cos_max[0, 2], patterns[g].cos_max[1, 2]] for g in live])
-    chir = np.array([patterns[g].chirality for g in live])
-    parent, cand = index.neighbours_in_windows(assign[:, 0], counts, cmin[:, 0], cmax[:, 0])
-    v = index.vectors
-    group = np.repeat(np.arange(len(live)), counts)[parent]
-    # as extend_indexed at level 2, with each row's own windows
-    prev = assign[parent, 1:2]
-    c = np.einsum("kmj,kj->km", v[prev], v[cand])
-    ok = np.all((c > cmin[group, 1:2]) & (c < cmax[group, 1:2]) & (prev != cand[:, None]),
-                axis=1)
-    parent, cand, group = parent[ok], cand[ok], group[ok]
-    assign = np.concatenate([assign[parent], cand[:, None]], axis=1)
-    if len(assign):
-        rows_chir = chir[group]
-        mirror = rows_chir != 0
-        keep = np.ones(len(assign), dtype=bool)
-        if mirror.any():
-            keep[mirror] = _chirality_ok(v, assign[mirror], rows_chir[mirror])
-        assign, group = assign[keep], group[keep]
-    cuts = np.searchsorted(group, np.arange(len(live) + 1))
-    for r, g in enumerate(live):
-        out[g] = assign[cuts[r]:cuts[r + 1]]
-    return out
-
-
 def _chirality_ok(v: NDArray[np.float64], assign: IntArray,
-                  chirality: int | IntArray) -> NDArray[np.bool_]:
+                  chirality: int) -> NDArray[np.bool_]:
     # det[a, b, c] = a · (b × c), written out: np.cross costs ~50 µs of overhead per call
-    # and this runs once per pattern on a handful of rows
     a, b, c = v[assign[:, 0]].T, v[assign[:, 1]].T, v[assign[:, 2]].T
     det = (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
            + a[2] * (b[0] * c[1] - b[1] * c[0]))

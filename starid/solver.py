@@ -40,7 +40,6 @@ import hashlib
 import itertools
 import math
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -49,6 +48,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from starid import kernels
 from starid import rotations as rot
 from starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
 from starid.calibrate import fit_camera
@@ -59,28 +59,14 @@ from starid.nstar import (
     WorkBudgetExceeded,
     chirality_of,
     closest_pair_first,
-    extend_indexed,
-    first_pair_indexed,
-    heads_indexed,
     match_faithful,
     match_indexed,
 )
-from starid.verify import (
-    DENSITY_SAFETY,
-    binomial_tail,
-    binomial_tail_many,
-    expected_chance_patterns,
-    expected_chance_patterns_many,
-    spot_geometry,
-)
+from starid.verify import DENSITY_SAFETY, binomial_tail
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
 _3_SQRT2 = 3.0 * math.sqrt(2.0)
-# 3-star patterns prepared together (see Solver._solve_at): the first batch of a solve is
-# small (a frame often succeeds within a few combinations, and patterns prepared past
-# the accepted one are wasted), later ones grow (a long search pays less overhead)
-_BATCHES = (4, 8, 16, 32)
 _CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
 
@@ -304,6 +290,10 @@ class Solver:
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
         self._tree = cKDTree(self.vectors)
+        self._ix = kernels.index_arrays(self.index)
+        self._pattern_lists: dict[int, tuple] = {}
+        # the search runs compiled, except with the matchers kept in numpy
+        self._compiled = not (faithful or self.n_bands > 1)
         self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
 
     # --- public -----------------------------------------------------------------------
@@ -464,6 +454,21 @@ class Solver:
                     if fresh(pat):
                         yield pat, f"combination {list(pat)}"
 
+    def _pattern_list(self, n_det: int) -> tuple[NDArray[np.int64], NDArray[np.int64],
+                                                 list[str]]:
+        """The first ``max_patterns`` + 1 patterns of :meth:`_patterns` (a function of
+        the detection count alone, so computed once per count) for :func:`kernels.search`:
+        detections (P, 8), their counts (P,) and the paths."""
+        if n_det not in self._pattern_lists:
+            pats = list(itertools.islice(self._patterns(n_det), self.max_patterns + 1))
+            arr = np.zeros((len(pats), 8), dtype=np.int64)
+            for r, (p, _) in enumerate(pats):
+                arr[r, :len(p)] = p
+            self._pattern_lists[n_det] = (arr, np.array([len(p) for p, _ in pats],
+                                                        dtype=np.int64),
+                                          [path for _, path in pats])
+        return self._pattern_lists[n_det]
+
     def _solve_at(self, xy: NDArray, cams: list[Camera]) -> tuple[Solution, int]:
         """Try patterns in order; each pattern at every focal-length guess (so the right
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
@@ -471,174 +476,118 @@ class Solver:
         b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
         rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
         # every pattern's pair windows come from one table per focal guess: cheaper than
-        # building them per pattern, and the same bits for a pair whichever pattern holds
-        # it (the prefix cache of _match_cached relies on that)
+        # building them per pattern
         tables = [_PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
-        prefixes: dict[tuple[int, ...], NDArray[np.int64] | str] = {}
-        tried = 0
-        first_counter = None
-        budget_note = ""
-        weak: list[tuple] = []  # (p_false, sel, assign, quick result, path, camera index)
+        run = _Search()
+        trials = self._trials_compiled if self._compiled else self._trials_numpy
+        for ci, sel, assignments, quicks, path in trials(xy, cams, b_cams, tables, run):
+            cam = cams[ci]
+            cands = [c for a, q in zip(assignments, quicks, strict=True)
+                     if q is not None and q[0] <= self.p_false_max
+                     and (c := self._verify(xy, cam, sel, a, q, b_cams[ci])) is not None]
+            accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
+                                 3 * self.tolerance_rad)
+            if len(accepted) == 1:
+                return self._solution(accepted[0], len(assignments), path, cands), run.tried
+            if len(accepted) > 1:
+                return Solution(
+                    False, f"ambiguous: {len(accepted)} distinct attitudes verified",
+                    matching_counter=len(assignments), path=path,
+                    candidates=sorted(accepted, key=lambda c: c.p_false),
+                ), run.tried
+        tried = run.tried
+        best = run.best_weak(3)
+        if best:
+            # nothing convincing: show the best few for an operator (or a filter's prior)
+            shown = []
+            for _, sel, a, _, ci, trial in best:
+                q = self._quick(b_cams[ci], tables[ci], sel, a[None], cams[ci], trial)[0]
+                if (c := self._verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
+                    shown.append(c)
+            reason = (f"ambiguous: weak evidence, the best candidate has p_false "
+                      f"{best[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
+            return Solution(False, reason, matching_counter=run.first_counter or 0,
+                            path=best[0][3],
+                            candidates=_distinct(shown, 3 * self.tolerance_rad)), tried
+        reason = f"no match: {run.budget_note or f'{tried} patterns tried'}"
+        return Solution(False, reason, matching_counter=run.first_counter or 0), tried
+
+    def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
+                         tables: list[_PairWindows], run: _Search) -> Iterator[tuple]:
+        """The search of :meth:`_solve_at` in compiled code (:func:`kernels.search`):
+        yields (guess, sel, assignments, quick checks, path) of every trial with a
+        candidate whose quick p_false passes, for :meth:`_verify`; ``run`` keeps the
+        counts, the weak candidates and the budget notes."""
+        pats, plen, paths = self._pattern_list(len(xy))
+        n_cams = len(cams)
+        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+        no_match = np.zeros((n_cams, len(pats) + 1), dtype=np.int64)
+        n_no_match = np.zeros(n_cams, dtype=np.int64)
+        pix = np.array([cam.pixel_scale_rad for cam in cams])
+        radius = self._match_radius_px() * pix
+        floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
+        stack = [np.stack([getattr(t, f) for t in tables])
+                 for f in ("angles", "tol", "cos_min", "cos_max")]
+        while True:
+            sel, rows, q, wp, wi = kernels.search(
+                self._ix, state, pats, plen, self.max_patterns * n_cams, no_match,
+                n_no_match, np.stack(b_cams), *stack, radius, floor, self.p_false_max,
+                self.work_budget)
+            if len(wp):
+                run.weak_rows.append((wp, wi, paths))
+            pos, ci, run.tried, first, status, note, a, b = state.tolist()
+            run.first_counter = None if first < 0 else first
+            if note == kernels.NOTE_WORK:
+                run.budget_note = (f"work budget exceeded ({a} partial assignments at "
+                                   f"level {b})")
+            elif note == kernels.NOTE_PATTERNS:
+                run.budget_note = f"{a} pattern trials (the budget)"
+            if status != kernels.STRONG:
+                return
+            yield ci, sel, rows, _quick_tuples(q), paths[pos]
+            state[:2] = (pos, ci + 1) if ci + 1 < n_cams else (pos + 1, 0)
+
+    def _trials_numpy(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
+                      tables: list[_PairWindows], run: _Search) -> Iterator[tuple]:
+        """:meth:`_trials_compiled` in Python, for the matchers kept in numpy (Renken's
+        faithful loops, declination bands): the same trials, counts and values."""
         budget = self.max_patterns * len(cams)
         # detection sets (bit masks) that matched nothing, per focal guess: a pattern
         # holding one of them matches nothing either (every window of the smaller set is
         # one of its own), so it is counted as tried but not matched — the swaps and
         # 4-star combinations after a failed Not-Modus are mostly such supersets
         no_match: list[list[int]] = [[] for _ in cams]
-        # 3-star patterns come in runs (the combination stage); a run is prepared in
-        # batches — windows, matches and quick checks of up to _BATCHES patterns at once,
-        # each with the trial number it will have — and then walked in order exactly as
-        # one pattern at a time would be. A 3-star pattern never holds a smaller no-match
-        # set, so nothing in a run depends on the outcome of an earlier pattern of it.
-        patterns = self._patterns(len(xy))
-        queue: deque[tuple[tuple[int, ...], str]] = deque()
-        # trial number → (sel, pattern, tol, assignments or a budget note, quick checks)
-        ready: dict[int, tuple] = {}
-        # per (focal guess, detection pair): the catalogue stars with a partner inside
-        # the pair's window (PatternIndex.stars_in_window), shared by the runs' patterns
-        pair_stars: dict[tuple[int, int, int], NDArray[np.bool_]] = {}
-        n_runs = 0
-        while True:
-            if not queue:
-                nxt = next(patterns, None)
-                if nxt is None:
-                    break
-                queue.append(nxt)
-                room = max(0, (budget - tried) // len(cams))
-                size = _BATCHES[min(n_runs, len(_BATCHES) - 1)]
-                while len(nxt[0]) == 3 and len(queue) < min(size, room):
-                    nxt = next(patterns, None)
-                    if nxt is None:
-                        break
-                    queue.append(nxt)
-                run = list(itertools.takewhile(lambda p: len(p[0]) == 3, queue))[:room]
-                if len(run) > 1:
-                    n_runs += 1
-                    self._prepare_run([p for p, _ in run], tried, cams, b_cams, tables,
-                                      prefixes, pair_stars, ready)
-            pat_idx, path = queue.popleft()
-            if tried >= budget:
-                budget_note = f"{tried} pattern trials (the budget)"
-                break
+        for pat_idx, path in self._patterns(len(xy)):
+            if run.tried >= budget:
+                run.budget_note = f"{run.tried} pattern trials (the budget)"
+                return
             mask = sum(1 << i for i in pat_idx)
             for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
-                tried += 1
+                run.tried += 1
                 if any(e & mask == e for e in no_match[ci]):
                     continue
-                pre = ready.pop(tried, None)
-                if pre is None:
-                    sel, pattern, tol = self._pattern_of(pat_idx, tables[ci], b_all)
-                    try:
-                        assignments = self._match_cached(pattern, sel, ci, prefixes)
-                    except WorkBudgetExceeded as e:
-                        assignments = str(e)
-                    quicks = None
-                else:
-                    sel, pattern, tol, assignments, quicks = pre
-                if isinstance(assignments, str):
-                    budget_note = f"work budget exceeded ({assignments})"
+                sel = np.array(pat_idx)
+                sel = sel[closest_pair_first(tables[ci].angles[sel[:, None], sel])]
+                pattern, _ = tables[ci].pattern(sel, b_all)
+                try:
+                    assignments = self._match(pattern)
+                except WorkBudgetExceeded as e:
+                    run.budget_note = f"work budget exceeded ({e})"
                     continue
-                ang = pattern.angles
-                if first_counter is None:
-                    first_counter = len(assignments)
+                if run.first_counter is None:
+                    run.first_counter = len(assignments)
                 if len(assignments) == 0:
                     no_match[ci].append(mask)
                     continue
-                chance = _Chance(ang, tol, tried, pattern.chirality != 0)
-                cands: list[Candidate] = []
-                if quicks is None:
-                    quicks = self._quick_checks(b_all, sel, assignments, cam, chance)
-                for a, quick in zip(assignments, quicks, strict=True):
-                    if quick is None:
-                        continue
-                    if quick[0] <= self.p_false_max:
-                        c = self._verify(xy, cam, sel, a, quick, b_all)
-                        if c is not None:
-                            cands.append(c)
-                    else:
-                        weak.append((quick[0], sel, a, quick, path, ci))
-                accepted = _distinct([c for c in cands if c.p_false <= self.p_false_max],
-                                     3 * self.tolerance_rad)
-                if len(accepted) == 1:
-                    return self._solution(accepted[0], len(assignments), path, cands), tried
-                if len(accepted) > 1:
-                    return Solution(
-                        False, f"ambiguous: {len(accepted)} distinct attitudes verified",
-                        matching_counter=len(assignments), path=path,
-                        candidates=sorted(accepted, key=lambda c: c.p_false),
-                    ), tried
-        if weak:
-            # nothing convincing: show the best few for an operator (or a filter's prior)
-            weak.sort(key=lambda w: w[0])
-            shown = [c for w in weak[:3]
-                     if (c := self._verify(xy, cams[w[5]], w[1], w[2], w[3])) is not None]
-            reason = (f"ambiguous: weak evidence, the best candidate has p_false "
-                      f"{weak[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
-            return Solution(False, reason, matching_counter=first_counter or 0,
-                            path=weak[0][4], candidates=_distinct(shown, 3 * self.tolerance_rad)
-                            ), tried
-        reason = f"no match: {budget_note or f'{tried} patterns tried'}"
-        return Solution(False, reason, matching_counter=first_counter or 0), tried
-
-    def _pattern_of(self, pat_idx: tuple[int, ...], table: _PairWindows, b_all: NDArray,
-                    ) -> tuple[NDArray[np.int64], Pattern, NDArray[np.float64]]:
-        """Detections of a pattern in matching order (closest pair first), its
-        :class:`Pattern` and its windows' half-widths at one focal guess."""
-        sel = np.array(pat_idx)
-        sel = sel[closest_pair_first(table.angles[sel[:, None], sel])]
-        pattern, tol = table.pattern(sel, b_all)
-        return sel, pattern, tol
-
-    def _prepare_run(self, run: list[tuple[int, ...]], tried: int, cams: list[Camera],
-                     b_cams: list[NDArray], tables: list[_PairWindows],
-                     prefixes: dict[tuple[int, ...], NDArray[np.int64] | str],
-                     pair_stars: dict[tuple[int, int, int], NDArray[np.bool_]],
-                     ready: dict[int, tuple]) -> None:
-        """Windows, matches and quick checks of a run of 3-star patterns, keyed in
-        ``ready`` by the trial number each (pattern, focal guess) will have when
-        :meth:`_solve_at` reaches it (``tried`` trials are done before the run). The
-        values are the ones the pattern-at-a-time path computes: the quick checks take
-        the trial number as their union-bound count, and are batched over the run."""
-        n_cams = len(cams)
-        batched_heads = not (self.faithful or self.n_bands > 1)
-        for ci, (cam, b_all) in enumerate(zip(cams, b_cams, strict=True)):
-            shapes = [self._pattern_of(pat_idx, tables[ci], b_all) for pat_idx in run]
-            if batched_heads:
-                # the heads _match_cached would compute one by one, in one pass
-                new = {}
-                for sel, pattern, _ in shapes:
-                    key = (ci, pattern.chirality, *sel.tolist())
-                    if key not in prefixes:
-                        new[key] = pattern
-                partners = []
-                for key, pattern in new.items():
-                    ends = []
-                    for s, t in ((0, 2), (1, 2)):  # windows to the third star
-                        pair = (ci, *sorted((key[2 + s], key[2 + t])))
-                        if pair not in pair_stars:
-                            pair_stars[pair] = self.index.stars_in_window(
-                                pattern.cos_min[s, t], pattern.cos_max[s, t])
-                        ends.append(pair_stars[pair])
-                    partners.append((ends[0], ends[1]))
-                for key, part in zip(new, heads_indexed(self.index, list(new.values()),
-                                                        self.work_budget, partners),
-                                     strict=True):
-                    prefixes[key] = part
-            groups = []
-            for j, (sel, pattern, tol) in enumerate(shapes):
-                trial = tried + j * n_cams + ci + 1
-                try:
-                    assignments = self._match_cached(pattern, sel, ci, prefixes)
-                except WorkBudgetExceeded as e:
-                    ready[trial] = (sel, pattern, tol, str(e), None)
-                    continue
-                ready[trial] = (sel, pattern, tol, assignments, None)
-                if len(assignments):
-                    groups.append((trial, sel, assignments,
-                                   _Chance(pattern.angles, tol, trial, pattern.chirality != 0)))
-            quicks = self._quick_checks_many(b_all, cam, [g[1:] for g in groups])
-            for (trial, *_), q in zip(groups, quicks, strict=True):
-                ready[trial] = (*ready[trial][:4], q)
+                quicks = self._quick(b_all, tables[ci], sel, assignments, cam, run.tried)
+                strong = False
+                for a, q in zip(assignments, quicks, strict=True):
+                    if q is not None and q[0] <= self.p_false_max:
+                        strong = True
+                    elif q is not None:
+                        run.weak.append((q[0], sel, a, path, ci, run.tried))
+                if strong:
+                    yield ci, sel, assignments, quicks, path
 
     def _solve_tracking(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
         """Tracking: predict the catalogue stars in the prior's field, associate the
@@ -802,8 +751,8 @@ class Solver:
         np.fill_diagonal(ang, 0.0)
         n_img = min(len(xy), params.max_stars)
         trials = max(1, n_img * (n_img - 1) * (n_img - 2) // 6)  # every image triangle
-        chance = _Chance(ang, np.full(ang.shape, np.radians(params.tol_sep_deg)), trials, True)
-        quick = self._quick_check(b_all, sel, assign, self.camera, chance)
+        chance = (ang, np.full(ang.shape, np.radians(params.tol_sep_deg)), True)
+        quick = self._quick(b_all, None, sel, assign[None], self.camera, trials, chance)[0]
         if quick is None:
             return Solution(False, "triad: match not confirmed by the projected catalogue",
                             path="triad")
@@ -834,150 +783,32 @@ class Solver:
         d, j = self._tree.query(b_all @ R, distance_upper_bound=2 * np.sin(radius_rad / 2))
         return _one_to_one(d, j)
 
-    def _quick_check(self, b_all: NDArray, sel: NDArray, assign: NDArray, cam: Camera,
-                     chance: _Chance) -> tuple[float, NDArray, float, NDArray, NDArray] | None:
-        """Cheap verification: attitude from the pattern, every detection rotated into
-        ICRS and matched in one KD-tree query. Returns (p_false, R, e_trials, detection
-        indices, catalogue indices) or None.
+    def _quick(self, b_all: NDArray, table: _PairWindows | None, sel: NDArray,
+               assigns: NDArray, cam: Camera, trials: int, chance: tuple | None = None,
+               ) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
+        """Cheap verification of every assignment (K, n) of one pattern
+        (:func:`kernels.quick_checks`): attitude from the pattern, every detection
+        rotated into ICRS and associated. Per assignment (p_false, R, e_trials,
+        detection indices, catalogue indices), or None.
 
         ``e_trials`` is the expected number of chance patterns fitting *as well as this
         candidate does* — windows shrunk to its own pair residuals, but never below the
-        centroid noise — times the trials so far (a union bound over the search)."""
-        R = _rotation_from_pairs(b_all[sel], self.vectors[assign])
-        if R is None:
-            return None
-        radius = self._match_radius_px() * cam.pixel_scale_rad
-        det_i, cat_i = self._associate_icrs(b_all, R, radius)
-        if not _keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
-            return None
-        vc = self.vectors[assign]
-        resid = np.abs(chance.angles - np.arccos(np.clip(vc @ vc.T, -1.0, 1.0)))
-        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
-        tol_fit = np.minimum(np.maximum(resid, floor), chance.tol)
-        e_trials = chance.trials * expected_chance_patterns(
-            chance.angles, tol_fit, len(self.vectors), chance.mirror_checked, chance.geometry)
-        k_other = len(det_i) - len(sel)
-        p = e_trials * binomial_tail(k_other, len(b_all) - len(sel),
-                                     self._p_hit(int(assign[0]), radius))
-        return min(1.0, p), R, e_trials, det_i, cat_i
-
-    def _quick_checks(self, b_all: NDArray, sel: NDArray, assigns: NDArray, cam: Camera,
-                      chance: _Chance,
-                      ) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
-        """:meth:`_quick_check` for every assignment (K, n) of one pattern at once.
-
-        Same results, candidate by candidate: the rotations come from one batched SVD,
-        the K rotated detection sets from one KD-tree query, and the one-to-one
-        association, pattern check and p_false are vectorised over K. A pattern of three
-        stars has a handful of chance assignments, and checking them one by one cost
-        ~0.25 ms each in per-call overhead — most of a Not-Modus trial's time. (Runs of
-        3-star patterns go through :meth:`_quick_checks_many`, which gives the same
-        values; this single-pattern form avoids its bookkeeping on the main pattern.)"""
-        assigns = np.asarray(assigns, dtype=np.int64)
-        n_k = len(assigns)
-        n_det = len(b_all)
-        out: list[tuple[float, NDArray, float, NDArray, NDArray] | None] = [None] * n_k
-        bs = b_all[sel]
-        vc = self.vectors[assigns]  # (K, n, 3)
-        proper, R, radius, det_k, cat_k, lookup = self._rotate_and_associate(
-            bs.T @ vc, b_all, cam)
-        keeps = proper & np.all(lookup[:, sel] == assigns, axis=1)
-        if not keeps.any():
-            return out
-        kk = np.flatnonzero(keeps)
-        vck = vc[kk]
-        resid = np.abs(chance.angles - np.arccos(np.clip(vck @ vck.transpose(0, 2, 1),
-                                                         -1.0, 1.0)))
-        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
-        tol_fit = np.minimum(np.maximum(resid, floor), chance.tol)
-        e_trials = chance.trials * expected_chance_patterns_many(
-            chance.angles, tol_fit, len(self.vectors), chance.mirror_checked, chance.geometry)
-        k_other = np.array([len(det_k[k]) for k in kk]) - len(sel)
-        p_hit = np.array([self._p_hit(int(assigns[k, 0]), radius) for k in kk])
-        p = e_trials * binomial_tail_many(k_other, n_det - len(sel), p_hit)
-        for r, k in enumerate(kk):
-            out[k] = (min(1.0, float(p[r])), R[k], float(e_trials[r]), det_k[k], cat_k[k])
-        return out
-
-    def _rotate_and_associate(self, B: NDArray, b_all: NDArray, cam: Camera) -> tuple:
-        """For K candidates' attitude profile matrices ``B`` (K, 3, 3): each rotation
-        (SVD; ``proper`` False where collinear, a reflection flipped — as
-        :func:`_rotation_from_pairs`), every detection rotated into ICRS and associated
-        one-to-one in one KD-tree query. Returns (proper, R, match radius, detection
-        indices per k, catalogue indices per k, (K, n_det) lookup with −1 = none)."""
-        n_k, n_det = len(B), len(b_all)
-        u, sv, vt = np.linalg.svd(B)
-        proper = sv[:, 1] >= 1e-12 * np.maximum(sv[:, 0], 1e-300)
-        flip = np.linalg.det(u) * np.linalg.det(vt) < 0
-        u[flip, :, 2] = -u[flip, :, 2]
-        R = u @ vt
-        radius = self._match_radius_px() * cam.pixel_scale_rad
-        d, j = self._tree.query((b_all @ R).reshape(-1, 3),
-                                distance_upper_bound=2 * np.sin(radius / 2))
-        det_k, cat_k = _one_to_one_many(d.reshape(n_k, n_det), j.reshape(n_k, n_det))
-        lookup = np.full((n_k, n_det), -1, dtype=np.int64)
-        for k in range(n_k):
-            lookup[k, det_k[k]] = cat_k[k]
-        return proper, R, radius, det_k, cat_k, lookup
-
-    def _quick_checks_many(
-            self, b_all: NDArray, cam: Camera,
-            groups: list[tuple[NDArray, NDArray, _Chance]],
-    ) -> list[list[tuple[float, NDArray, float, NDArray, NDArray] | None]]:
-        """:meth:`_quick_check` for every assignment of several patterns of one size at
-        one focal guess — ``groups`` holds (sel, assignments (K, n), chance) per pattern.
-
-        Same results, candidate by candidate: the rotations come from one batched SVD,
-        all rotated detection sets from one KD-tree query, and the one-to-one
-        association, pattern check and p_false are vectorised over every candidate of
-        every pattern (each candidate's arithmetic is elementwise, so batching does not
-        change its values). A pattern of three stars has a handful of chance assignments;
-        checking them pattern by pattern cost ~0.5 ms each in per-call overhead — most of
-        a 3-star combination trial's time, hence the batching across patterns."""
-        n_det = len(b_all)
-        sizes = [len(g[1]) for g in groups]
-        out: list[list[tuple[float, NDArray, float, NDArray, NDArray] | None]] = [
-            [None] * s for s in sizes]
-        n_k = sum(sizes)
-        if n_k == 0:
-            return out
-        n = len(groups[0][0])
-        gid = np.repeat(np.arange(len(groups)), sizes)
-        sels = np.array([g[0] for g in groups], dtype=np.int64)[gid]  # (K, n)
-        assigns = np.concatenate([np.asarray(g[1], dtype=np.int64) for g in groups])
-        bs = b_all[sels]  # (K, n, 3)
-        vc = self.vectors[assigns]  # (K, n, 3)
-        proper, R, radius, det_k, cat_k, lookup = self._rotate_and_associate(
-            bs.transpose(0, 2, 1) @ vc, b_all, cam)
-        keeps = proper & np.all(np.take_along_axis(lookup, sels, axis=1) == assigns, axis=1)
-        if not keeps.any():
-            return out
-        kk = np.flatnonzero(keeps)
-        vck = vc[kk]
-        gk = gid[kk]
-        angles = np.array([g[2].angles for g in groups])[gk]
-        tols = np.array([g[2].tol for g in groups])[gk]
-        resid = np.abs(angles - np.arccos(np.clip(vck @ vck.transpose(0, 2, 1), -1.0, 1.0)))
-        floor = np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad
-        tol_fit = np.minimum(np.maximum(resid, floor), tols)
-        # the chance estimate's geometry is the pattern's own: one call per pattern
-        e_trials = np.empty(len(kk))
-        cuts = np.searchsorted(gk, np.arange(len(groups) + 1))
-        for g, (_, _, chance) in enumerate(groups):
-            a, b = cuts[g], cuts[g + 1]
-            if a < b:
-                e_trials[a:b] = chance.trials * expected_chance_patterns_many(
-                    chance.angles, tol_fit[a:b], len(self.vectors), chance.mirror_checked,
-                    chance.geometry)
-        k_other = np.array([len(det_k[k]) for k in kk]) - n
-        p_hit = np.array([self._p_hit(int(assigns[k, 0]), radius) for k in kk])
-        p = e_trials * binomial_tail_many(k_other, n_det - n, p_hit)
-        starts = np.cumsum([0, *sizes])
-        for r, k in enumerate(kk.tolist()):
-            g = int(gid[k])
-            out[g][k - starts[g]] = (min(1.0, float(p[r])), R[k], float(e_trials[r]),
-                                     det_k[k], cat_k[k])
-        return out
+        centroid noise — times the trials so far (a union bound over the search). The
+        pattern's angles and windows come from ``table`` (or ``chance`` = (angles, window
+        half-widths, mirror checked))."""
+        if chance is None:
+            ix = (sel[:, None], sel)
+            ang, tol = table.angles[ix], table.tol[ix]
+            mirror = chirality_of(b_all[sel], 2.0 * float(tol.max())) != 0
+        else:
+            ang, tol, mirror = chance
+        pix = cam.pixel_scale_rad
+        q = kernels.quick_checks(
+            self._ix, np.ascontiguousarray(b_all), np.asarray(sel, dtype=np.int64),
+            np.ascontiguousarray(assigns, dtype=np.int64), np.ascontiguousarray(ang),
+            np.ascontiguousarray(tol), bool(mirror), int(trials),
+            self._match_radius_px() * pix, np.sqrt(2.0) * self.centroid_sigma_px * pix)
+        return _quick_tuples(q)
 
     def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
                 quick: tuple[float, NDArray, float, NDArray, NDArray],
@@ -1025,49 +856,6 @@ class Solver:
             covariance=final.covariance * _variance_factor(final),
             _projector=self._project,
         )
-
-    def _match_cached(self, pattern: Pattern, sel: NDArray, ci: int,
-                      prefixes: dict[tuple[int, ...], NDArray[np.int64] | str],
-                      ) -> NDArray[np.int64]:
-        """:meth:`_match`, keeping the partial assignments of every pattern prefix (its
-        first m ≥ 3 stars, in matching order) for the rest of the solve.
-
-        Not-Modus and the combinations try many patterns that start with the same
-        detections, and the first three levels hold nearly all of the matcher's work (the
-        window of the first pair holds ~10³ catalogue pairs; the third star cuts them to
-        a handful). The partials of a prefix depend only on its own pair windows —
-        functions of the detections and the focal guess ``ci`` — and on the mirror
-        check's verdict, so ``(ci, chirality, s0, …, s(m−1))`` determines them: a
-        pattern continues from its longest known prefix, and gets exactly what
-        :func:`match_indexed` would (same rows, same order). An empty prefix ends every
-        pattern that starts with it at once. A head over the work budget is remembered
-        as such and raises again."""
-        if self.faithful or self.n_bands > 1 or pattern.n < 3:
-            return self._match(pattern)
-        n = pattern.n
-        key = (ci, pattern.chirality, *sel.tolist())
-        m = n
-        part = prefixes.get(key)
-        while part is None and m > 3:
-            m -= 1
-            part = prefixes.get(key[: 2 + m])
-        if part is None:  # a new head: the first pair's window, then the third star
-            try:
-                part = extend_indexed(self.index, pattern,
-                                      first_pair_indexed(self.index, pattern),
-                                      self.work_budget, upto=3)
-            except WorkBudgetExceeded as e:
-                part = str(e)
-            prefixes[key[:5]] = part
-        if isinstance(part, str):
-            raise WorkBudgetExceeded(part)
-        while m < n:
-            if len(part) == 0:
-                break
-            m += 1
-            part = extend_indexed(self.index, pattern, part, self.work_budget, upto=m)
-            prefixes[key[: 2 + m]] = part
-        return part if len(part) else np.zeros((0, n), dtype=np.int64)
 
     def _match(self, pattern: Pattern) -> NDArray[np.int64]:
         if self.faithful:
@@ -1153,15 +941,6 @@ class Solver:
         )
 
 
-def _pattern(ang: NDArray, b: NDArray, tol: NDArray) -> Pattern:
-    n = len(ang)
-    t = np.broadcast_to(tol, (n, n))
-    lo = np.maximum(ang - t, 0.0)
-    hi = np.minimum(ang + t, np.pi)
-    chir = chirality_of(b, 2.0 * float(np.max(t))) if n >= 3 else 0
-    return Pattern(ang, np.cos(hi), np.cos(lo), chir, float(hi.max()))
-
-
 @dataclass(frozen=True)
 class _PairWindows:
     """The matching windows of every detection pair at one focal guess: a pattern's are a
@@ -1192,18 +971,38 @@ class _PairWindows:
                        float(self.hi[ix].max())), tol
 
 
-@dataclass(frozen=True)
-class _Chance:
-    """What the chance-match estimate needs about the pattern being tried."""
+@dataclass
+class _Search:
+    """What a solve's search has counted so far (see :meth:`Solver._solve_at`)."""
 
-    angles: NDArray[np.float64]  # image pair angles (rad), matching order
-    tol: NDArray[np.float64]  # the matching windows' half-widths (rad)
-    trials: int  # patterns (× focal guesses) tried so far, this one included
-    mirror_checked: bool
+    tried: int = 0  # (pattern, focal guess) trials
+    first_counter: int | None = None  # matching_counter of the first pattern matched
+    budget_note: str = ""  # the last budget event
+    # (quick p_false, sel, assignment, path, focal guess, trial) of candidates too weak
+    weak: list[tuple] = field(default_factory=list)
+    # the same from kernels.search: (p_false (W,), rows (W, 20), paths), unpacked on demand
+    weak_rows: list[tuple] = field(default_factory=list)
 
-    @cached_property
-    def geometry(self) -> list[tuple[int, int, float]]:
-        return spot_geometry(self.angles)
+    def best_weak(self, k: int) -> list[tuple]:
+        """The ``k`` weak candidates with the lowest quick p_false (ties: first found)."""
+        if not self.weak_rows:
+            return sorted(self.weak, key=lambda w: w[0])[:k]
+        p = np.concatenate([w[0] for w in self.weak_rows])
+        rows = np.concatenate([w[1] for w in self.weak_rows])
+        paths = self.weak_rows[0][2]
+        out = []
+        for o in np.argsort(p, kind="stable")[:k].tolist():
+            pos, ci, trial, n = rows[o, :4].tolist()
+            out.append((float(p[o]), rows[o, 4:4 + n].copy(), rows[o, 12:12 + n].copy(),
+                        paths[pos], ci, trial))
+        return out
+
+
+def _quick_tuples(q: tuple) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
+    """:func:`kernels.quick_checks`' arrays as one tuple (or None) per assignment."""
+    ok, p, R, e, det, cat, n = q
+    return [(float(p[k]), R[k], float(e[k]), det[k, :n[k]], cat[k, :n[k]]) if ok[k]
+            else None for k in range(len(ok))]
 
 
 def _pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
@@ -1249,28 +1048,6 @@ def _one_to_one(d: NDArray, j: NDArray) -> tuple[NDArray[np.int64], NDArray[np.i
     _, first = np.unique(j[det], return_index=True)
     det = np.sort(det[first])
     return det.astype(np.int64), j[det].astype(np.int64)
-
-
-def _one_to_one_many(d: NDArray, j: NDArray,
-                     ) -> tuple[list[NDArray[np.int64]], list[NDArray[np.int64]]]:
-    """:func:`_one_to_one` for K queries at once (``d``, ``j`` (K, N)): per query, the
-    detections with a match and their targets, each target kept by its closest detection
-    (ties to the lower index) — one sort for all K instead of K small ones."""
-    n_k, n = d.shape
-    flat = np.flatnonzero(np.isfinite(d))
-    q, det = np.divmod(flat, n)
-    dist, tgt = d.ravel()[flat], j.ravel()[flat]
-    # within a (query, target) group: closest first, then the lower detection index
-    o = np.lexsort((det, dist, tgt, q))
-    q, det, tgt = q[o], det[o], tgt[o]
-    first = np.ones(len(o), dtype=bool)
-    first[1:] = (q[1:] != q[:-1]) | (tgt[1:] != tgt[:-1])
-    q, det, tgt = q[first], det[first], tgt[first]
-    o = np.lexsort((det, q))
-    q, det, tgt = q[o], det[o].astype(np.int64), tgt[o].astype(np.int64)
-    cuts = np.searchsorted(q, np.arange(n_k + 1))
-    return ([det[cuts[k]:cuts[k + 1]] for k in range(n_k)],
-            [tgt[cuts[k]:cuts[k + 1]] for k in range(n_k)])
 
 
 def _keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,

@@ -32,9 +32,7 @@ from scipy.special import bdtrc
 
 __all__ = [
     "binomial_tail",
-    "binomial_tail_many",
     "expected_chance_patterns",
-    "expected_chance_patterns_many",
     "spot_geometry",
 ]
 
@@ -50,15 +48,6 @@ def binomial_tail(k: int, m: int, p: float) -> float:
         return 0.0
     p = min(max(p, 0.0), 1.0)
     return float(bdtrc(k - 1, m, p))
-
-
-def binomial_tail_many(k: NDArray[np.int64], m: int, p: NDArray[np.float64],
-                       ) -> NDArray[np.float64]:
-    """:func:`binomial_tail` elementwise over arrays of ``k`` and ``p`` (same values)."""
-    k = np.asarray(k, dtype=np.int64)
-    p = np.clip(np.asarray(p, dtype=np.float64), 0.0, 1.0)
-    out = bdtrc(np.maximum(k - 1, 0), m, p)
-    return np.where(k <= 0, 1.0, np.where(k > m, 0.0, out))
 
 
 def expected_chance_patterns(
@@ -81,30 +70,14 @@ def expected_chance_patterns(
     ``geometry`` is :func:`spot_geometry` of ``angles``, when the caller has it already.
     """
     a = np.asarray(angles, dtype=np.float64)
-    w = np.broadcast_to(np.asarray(tol, dtype=np.float64), a.shape)
-    return float(expected_chance_patterns_many(a, w[None], n_catalog, mirror_checked,
-                                               geometry)[0])
-
-
-def expected_chance_patterns_many(
-    angles: NDArray[np.float64],
-    tol: NDArray[np.float64],
-    n_catalog: int,
-    mirror_checked: bool,
-    geometry: list[tuple[int, int, float]] | None = None,
-) -> NDArray[np.float64]:
-    """:func:`expected_chance_patterns` for K window sets (``tol`` (K, n, n)) of one image
-    pattern at once — one value per candidate of a pattern, each computed with the same
-    operations in the same order as the single version, so the values are identical."""
-    a = np.asarray(angles, dtype=np.float64)
-    w = 2.0 * np.asarray(tol, dtype=np.float64)
+    w = 2.0 * np.broadcast_to(np.asarray(tol, dtype=np.float64), a.shape)
     rho = DENSITY_SAFETY * n_catalog / (4.0 * np.pi)
-    e = float(n_catalog) * rho * 2.0 * np.pi * max(np.sin(a[0, 1]), 1e-6) * w[:, 0, 1]
+    e = float(n_catalog) * rho * 2.0 * np.pi * max(np.sin(a[0, 1]), 1e-6) * w[0, 1]
     e *= 2.0  # either image star of the first pair may be either catalogue star
     for m, (s, t, sin_gamma) in enumerate(geometry or spot_geometry(a), start=2):
         spots = 1.0 if (m >= 3 or mirror_checked) else 2.0
-        e *= rho * spots * w[:, s, m] * w[:, t, m] / max(sin_gamma, 0.05)
-    return e
+        e *= rho * spots * w[s, m] * w[t, m] / max(sin_gamma, 0.05)
+    return float(e)
 
 
 def spot_geometry(angles: NDArray[np.float64]) -> list[tuple[int, int, float]]:

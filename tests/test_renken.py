@@ -19,7 +19,6 @@ from starid.nstar import (
     closest_pair_first,
     extend_indexed,
     first_pair_indexed,
-    heads_indexed,
     match_faithful,
     match_indexed,
 )
@@ -366,91 +365,108 @@ def test_simulation_eta_matches_tab_8_22_to_8_28(mag, tol, published, bound):
     assert cell.wrong_unique == 0 or mag < 5.4  # AC-24: no miss-matches from 5.4 on
 
 
-@given(seed=st.integers(0, 10**6), tol_deg=st.floats(0.05, 2.5), n_pat=st.integers(1, 6))
-@settings(max_examples=30, deadline=None)
-def test_heads_of_many_patterns_at_once_equal_one_by_one(small_sky, seed, tol_deg, n_pat):
-    """The solver places the third star of a whole run of 3-star patterns in one pass:
-    each pattern gets the rows, in the order, that its own head look-up gives."""
+@given(seed=st.integers(0, 10**6), n=st.integers(2, 6), tol_deg=st.floats(0.05, 2.5),
+       undecided=st.booleans())
+@settings(max_examples=60, deadline=None)
+def test_compiled_match_gives_the_rows_of_match_indexed(small_sky, seed, n, tol_deg,
+                                                        undecided):
+    """starid.kernels.match (the solver's matcher): the rows match_indexed gives, in the
+    same order — with the mirror check decided or not — and the faithful set; the work
+    array is left as it was found."""
+    from starid import kernels
+
     v, idx = small_sky
-    rng = np.random.default_rng(seed)
-    pats = []
-    for _ in range(n_pat):
-        centre = v[rng.integers(len(v))]
-        near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
-        sel = rng.choice(near, 3, replace=False)
-        b = v[sel] + rng.normal(scale=np.radians(tol_deg) / 4, size=(3, 3))
-        b /= np.linalg.norm(b, axis=1, keepdims=True)
-        pat = Pattern.from_vectors(b, np.radians(tol_deg))
-        if rng.random() < 0.3:  # an undecided mirror check
-            pat = Pattern(pat.angles, pat.cos_min, pat.cos_max, 0, pat.delta_max_rad)
-        pats.append(pat)
-    many = heads_indexed(idx, pats, 10**7)
-    for pat, got in zip(pats, many, strict=True):
-        want = extend_indexed(idx, pat, first_pair_indexed(idx, pat), 10**7, upto=3)
-        assert got.shape == (len(want), 3)
-        np.testing.assert_array_equal(got, want)
+    drawn = noisy_pattern(v, seed, n, tol_deg)
+    if drawn is None:
+        return
+    pat = drawn[0]
+    if undecided:
+        pat = Pattern(pat.angles, pat.cos_min, pat.cos_max, 0, pat.delta_max_rad)
+    ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
+    rows, over, _ = kernels.match(ix, pat.cos_min, pat.cos_max, pat.chirality, 10**7, work)
+    want = match_indexed(idx, pat, max_partials=10**7)
+    assert over == 0 and rows.shape == (len(want), n)
+    np.testing.assert_array_equal(rows, want)
+    assert set_of(rows) == set_of(match_faithful(v, pat, dec_check=False))
+    assert (work == -1).all()
 
 
-def test_heads_over_the_work_budget_carry_the_message_extend_would_raise(small_sky):
+def test_compiled_match_mirror_and_work_budget(small_sky):
+    """The mirror image of a triangle is not matched, the true one is; over the work
+    budget the kernel reports what WorkBudgetExceeded says, at the same level."""
+    from starid import kernels
+
     v, idx = small_sky
+    ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
     trio = np.argsort(-(v @ v[0]))[:3]  # star 0 and its two nearest neighbours
-    wide = Pattern.from_vectors(v[trio], np.radians(3.0))
-    first = first_pair_indexed(idx, wide)
-    budget = len(first) - 1
-    assert budget > 0
-    with pytest.raises(WorkBudgetExceeded) as e:
-        extend_indexed(idx, wide, first, budget, upto=3)
-    narrow = Pattern.from_vectors(v[trio], np.radians(0.01))
-    got = heads_indexed(idx, [wide, narrow], budget)
-    assert got[0] == str(e.value)
-    np.testing.assert_array_equal(
-        got[1], extend_indexed(idx, narrow, first_pair_indexed(idx, narrow), budget, upto=3))
+    pat = Pattern.from_vectors(v[trio], np.radians(0.01))
+    assert pat.chirality != 0
+    rows, _, _ = kernels.match(ix, pat.cos_min, pat.cos_max, pat.chirality, 10**7, work)
+    assert tuple(trio.tolist()) in set_of(rows)
+    flipped = Pattern(pat.angles, pat.cos_min, pat.cos_max, -pat.chirality, pat.delta_max_rad)
+    rows, _, _ = kernels.match(ix, flipped.cos_min, flipped.cos_max, flipped.chirality, 10**7,
+                               work)
+    assert tuple(trio.tolist()) not in set_of(rows)
+    rng = np.random.default_rng(3)
+    levels = set()
+    for _ in range(60):
+        n = int(rng.integers(4, 7))
+        drawn = noisy_pattern(v, int(rng.integers(10**6)), n, float(rng.uniform(2.0, 4.0)))
+        if drawn is None:
+            continue
+        pat = drawn[0]
+        n_first = len(first_pair_indexed(idx, pat))
+        n_head = len(extend_indexed(idx, pat, first_pair_indexed(idx, pat), 10**7, upto=3))
+        # over at the first pair, at the third star, or within budget
+        for budget in (n_first - 1, max(n_first, n_head - 1), 10**7):
+            try:
+                match_indexed(idx, pat, budget)
+                message = None
+            except WorkBudgetExceeded as e:
+                message = str(e)
+            rows, over, level = kernels.match(ix, pat.cos_min, pat.cos_max, pat.chirality,
+                                              budget, work)
+            if message is None:
+                assert over == 0
+            else:
+                assert len(rows) == 0
+                assert message == f"{over} partial assignments at level {level}"
+                levels.add(level)
+    assert levels >= {2, 3}  # the first-pair window and the third star hit the budget
+    assert (work == -1).all()
 
 
-def test_neighbours_in_group_windows_equal_one_window_per_call(small_sky):
-    v, idx = small_sky
-    rng = np.random.default_rng(4)
-    counts = np.array([0, 7, 0, 40, 13, 0])
-    stars = rng.integers(0, len(v), counts.sum())
-    ang = np.radians(rng.uniform(1.0, 40.0, len(counts)))
-    ang[3] = np.radians(60.0)  # a window beyond the index: no neighbours
-    cmin, cmax = np.cos(ang + 0.01), np.cos(ang - 0.01)
-    parent, nbr = idx.neighbours_in_windows(stars, counts, cmin, cmax)
-    start = 0
-    want_p, want_n = [], []
-    for g, c in enumerate(counts):
-        p, n = idx.neighbours_in_window(stars[start:start + c], float(cmin[g]), float(cmax[g]))
-        want_p.append(p + start)
-        want_n.append(n)
-        start += c
-    np.testing.assert_array_equal(parent, np.concatenate(want_p))
-    np.testing.assert_array_equal(nbr, np.concatenate(want_n))
-    assert len(parent) > 0
+def test_compiled_rotation_equals_the_svd_one():
+    """The kernels' Jacobi SVD gives the rotation of starid.solver._rotation_from_pairs
+    (to rounding scaled by the problem's conditioning), and the same collinear verdict."""
+    from starid import kernels
+    from starid.solver import _rotation_from_pairs
 
-
-@given(seed=st.integers(0, 10**6), tol_deg=st.floats(0.05, 2.5))
-@settings(max_examples=30, deadline=None)
-def test_heads_skip_first_pairs_without_partners_and_lose_nothing(small_sky, seed, tol_deg):
-    """With the partner masks of the windows to the third star, first pairs that cannot
-    be extended are dropped before the look-up: the heads are unchanged."""
-    v, idx = small_sky
-    rng = np.random.default_rng(seed)
-    pats = []
-    for _ in range(4):
-        centre = v[rng.integers(len(v))]
-        near = np.flatnonzero(v @ centre > np.cos(np.radians(20)))
-        b = v[rng.choice(near, 3, replace=False)]
-        b = b + rng.normal(scale=np.radians(tol_deg) / 4, size=(3, 3))
-        pats.append(Pattern.from_vectors(b / np.linalg.norm(b, axis=1, keepdims=True),
-                                         np.radians(tol_deg)))
-    partners = [(idx.stars_in_window(p.cos_min[0, 2], p.cos_max[0, 2]),
-                 idx.stars_in_window(p.cos_min[1, 2], p.cos_max[1, 2])) for p in pats]
-    plain = heads_indexed(idx, pats, 10**7)
-    for got, want in zip(heads_indexed(idx, pats, 10**7, partners), plain, strict=True):
-        assert got.shape == want.shape
-        np.testing.assert_array_equal(got, want)
-    # the budget counts the whole first-pair window, as extend_indexed does
-    first = first_pair_indexed(idx, pats[0])
-    if len(first) > 1:
-        got = heads_indexed(idx, pats[:1], len(first) - 1, partners[:1])[0]
-        assert got == f"{len(first)} partial assignments at level 2"
+    rng = np.random.default_rng(0)
+    collinear = 0
+    for _ in range(3000):
+        n = int(rng.integers(2, 7))
+        c = rng.normal(size=3)
+        b = c / np.linalg.norm(c) + rng.normal(scale=10 ** rng.uniform(-3, 0), size=(n, 3))
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        if rng.random() < 0.5:  # a rotated copy, with noise
+            r = b @ rot.to_matrix(rot.normalize(rng.normal(size=4))) \
+                + rng.normal(scale=1e-4, size=(n, 3))
+        else:
+            r = rng.normal(size=(n, 3))
+        if rng.random() < 0.3:
+            r[:, 2] *= -1  # a reflection: the nearest proper rotation
+        r /= np.linalg.norm(r, axis=1, keepdims=True)
+        if n == 2 and rng.random() < 0.5:
+            b[1], r[1] = b[0], r[0]  # one direction twice: undetermined
+        want = _rotation_from_pairs(b, r)
+        got, proper = kernels._rotation(b, np.ascontiguousarray(r))
+        assert (want is None) == (not proper)
+        if want is None:
+            collinear += 1
+            continue
+        sv = np.linalg.svd(b.T @ r, compute_uv=False)
+        cond = sv[0] / (sv[1] + sv[2])
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * cond)
+        assert np.linalg.det(got) == pytest.approx(1.0, abs=1e-12)
+    assert 0 < collinear < 3000

@@ -96,36 +96,63 @@ def test_not_modus_recovers_when_a_bright_false_star_spoils_the_pattern(solver, 
     assert all(d != 2 for d, _ in sol.matches)
 
 
-def test_kept_pattern_heads_change_no_result(solver, cat, cam, monkeypatch):
-    """The head cache of the Not-Modus search is a pure speed-up: with every pattern
-    matched afresh the solutions are the same — path, trials, matches and p_false."""
+def test_compiled_search_equals_the_numpy_search(solver, cat, cam, monkeypatch):
+    """The compiled search (starid.kernels) is a pure speed-up: with the pattern loop in
+    Python and every pattern matched by nstar.match_indexed, the solutions are the same —
+    ok, reason, path, trials, matches, matching counter, p_false, candidates."""
     rng = np.random.default_rng(31)
-    frames = [sky_frame(cat, cam, rng, n_false=8)[0] for _ in range(12)]
+    frames = [sky_frame(cat, cam, rng, n_false=8)[0] for _ in range(10)]
+    frames += [sky_frame(cat, cam, rng, n_false=3, drop=0.3)[0] for _ in range(4)]
     frames += [rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2))]
-    cached = [solver.solve(xy) for xy in frames]
-    assert sum(s.patterns_tried for s in cached) > 3 * len(frames)  # the search ran
-    monkeypatch.setattr(type(solver), "_match_cached",
-                        lambda self, pattern, sel, ci, heads: self._match(pattern))
-    for xy, a in zip(frames, cached, strict=True):
+    compiled = [solver.solve(xy) for xy in frames]
+    assert sum(s.patterns_tried for s in compiled) > 3 * len(frames)  # the search ran
+    assert any(not s.ok for s in compiled) and any(s.ok for s in compiled)
+    monkeypatch.setattr(solver, "_compiled", False)
+    for xy, a in zip(frames, compiled, strict=True):
         b = solver.solve(xy)
-        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches) \
-            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches)
+        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches, a.matching_counter) \
+            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches, b.matching_counter)
         assert a.p_false == b.p_false
+        assert [c.p_false for c in a.candidates] == [c.p_false for c in b.candidates]
+
+
+def test_compiled_search_equals_the_numpy_search_over_focal_guesses(cat, monkeypatch):
+    rng = np.random.default_rng(8)
+    true_cam = starid.Camera.pinhole(1024, 768, 15.2)
+    s = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), fov_error_deg=0.6,
+                      max_patterns=40)
+    frames = [sky_frame(cat, true_cam, rng, n_false=k)[0] for k in (0, 3, 8)]
+    compiled = [s.solve(xy) for xy in frames]
+    monkeypatch.setattr(s, "_compiled", False)
+    for xy, a in zip(frames, compiled, strict=True):
+        b = s.solve(xy)
+        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches, a.p_false) \
+            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches, b.p_false)
 
 
 def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
         solver, cat, cam, monkeypatch):
     """After a failed Not-Modus, a pattern holding detections that already matched
-    nothing is skipped (it cannot match), yet counted in ``patterns_tried``."""
+    nothing is skipped (it cannot match), yet counted in ``patterns_tried`` (shown on the
+    numpy search, which the compiled one equals)."""
     calls: list[tuple[frozenset, int]] = []
-    real = type(solver)._match_cached
+    real = type(solver)._match
+    sels: list[frozenset] = []
 
-    def spy(self, pattern, sel, ci, prefixes):
-        out = real(self, pattern, sel, ci, prefixes)
-        calls.append((frozenset(sel.tolist()), len(out)))
+    def spy(self, pattern):
+        out = real(self, pattern)
+        calls.append((sels[-1], len(out)))
         return out
 
-    monkeypatch.setattr(type(solver), "_match_cached", spy)
+    monkeypatch.setattr(solver, "_compiled", False)
+    monkeypatch.setattr(type(solver), "_match", spy)
+    real_pattern = starid.solver._PairWindows.pattern
+
+    def pattern(self, sel, b_all):  # the detections of the pattern about to be matched
+        sels.append(frozenset(sel.tolist()))
+        return real_pattern(self, sel, b_all)
+
+    monkeypatch.setattr(starid.solver._PairWindows, "pattern", pattern)
     rng = np.random.default_rng(12)
     skipped = 0
     for _ in range(6):
@@ -142,101 +169,106 @@ def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
     assert skipped > 0
 
 
-def test_batched_quick_checks_equal_one_by_one_checks(solver, cat, cam):
-    """Every chance assignment of 3-star patterns on a frame with false stars: the batched
-    check gives each candidate's result exactly (rejections included)."""
+def _quick_check_numpy(solver, b_all, sel, assign, cam, angles, tol, trials, mirror):
+    """The quick check as the numpy solver computed it (KD-tree association, scipy's
+    binomial tail, starid.verify's chance estimate): the reference for the kernel."""
+    from scipy.spatial import cKDTree
+
+    from starid.solver import _keeps_pattern, _one_to_one, _rotation_from_pairs
+    from starid.verify import binomial_tail, expected_chance_patterns
+
+    R = _rotation_from_pairs(b_all[sel], solver.vectors[assign])
+    if R is None:
+        return None
+    radius = solver._match_radius_px() * cam.pixel_scale_rad
+    d, j = cKDTree(solver.vectors).query(b_all @ R, distance_upper_bound=2 * np.sin(radius / 2))
+    det_i, cat_i = _one_to_one(d, j)
+    if not _keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
+        return None
+    vc = solver.vectors[assign]
+    resid = np.abs(angles - np.arccos(np.clip(vc @ vc.T, -1.0, 1.0)))
+    floor = np.sqrt(2.0) * solver.centroid_sigma_px * cam.pixel_scale_rad
+    tol_fit = np.minimum(np.maximum(resid, floor), tol)
+    e_trials = trials * expected_chance_patterns(angles, tol_fit, len(solver.vectors), mirror)
+    p = e_trials * binomial_tail(len(det_i) - len(sel), len(b_all) - len(sel),
+                                 solver._p_hit(int(assign[0]), radius))
+    return min(1.0, p), R, e_trials, det_i, cat_i
+
+
+def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
+    """Every chance assignment of 3- and 4-star patterns on frames with false stars: the
+    kernel's quick check gives each candidate's result (rejections included) as the
+    numpy formulas do — association, rotation to 1e-12, p_false to 1e-9 (the catalogue
+    pairs' angles come from arccos of dot products: one ulp of a cosine, summed in
+    another order or with FMA by BLAS, moves a 1° angle by ~1e-14 rad, ~1e-11 of a
+    window)."""
     from starid.nstar import closest_pair_first
-    from starid.solver import _Chance, _pattern
 
     rng = np.random.default_rng(5)
-    xy, _ = sky_frame(cat, cam, rng, n_false=8)
-    b_all = cam.pixels_to_vectors(xy[:30])
     seen = rejected = 0
-    groups, singles = [], []
-    for trio in [(0, 1, 2), (0, 3, 5), (1, 4, 7), (2, 6, 9), (3, 8, 10), (5, 7, 11)]:
-        sel = np.array(trio)
-        ang = np.arccos(np.clip(b_all[sel] @ b_all[sel].T, -1, 1))
-        np.fill_diagonal(ang, 0.0)
-        o = closest_pair_first(ang)
-        sel, ang = sel[o], ang[np.ix_(o, o)]
-        tol = np.full(ang.shape, solver.tolerance_rad)
-        pattern = _pattern(ang, b_all[sel], tol)
-        assigns = solver._match(pattern)
-        chance = _Chance(ang, tol, 17, pattern.chirality != 0)
-        batch = solver._quick_checks(b_all, sel, assigns, cam, chance)
-        assert len(batch) == len(assigns)
-        groups.append((sel, assigns, chance))
-        singles.append(batch)
-        for a, got in zip(assigns, batch, strict=True):
-            want = solver._quick_check(b_all, sel, a, cam, chance)
-            seen += 1
-            if want is None:
-                rejected += 1
-                assert got is None
+    for _ in range(3):
+        xy, _ = sky_frame(cat, cam, rng, n_false=8)
+        b_all = cam.pixels_to_vectors(xy[:30])
+        for _ in range(8):
+            sel = rng.choice(min(len(b_all), 12), rng.integers(3, 5), replace=False)
+            ang = np.arccos(np.clip(b_all[sel] @ b_all[sel].T, -1, 1))
+            np.fill_diagonal(ang, 0.0)
+            o = closest_pair_first(ang)
+            sel, ang = sel[o], ang[np.ix_(o, o)]
+            tol = np.full(ang.shape, solver.tolerance_rad)
+            pattern = starid.nstar.Pattern.from_angles(ang, solver.tolerance_rad,
+                                                       starid.nstar.chirality_of(
+                                                           b_all[sel], 2 * solver.tolerance_rad))
+            assigns = solver._match(pattern)
+            if len(assigns) == 0:
                 continue
-            assert got[0] == want[0] and got[2] == want[2]
-            np.testing.assert_allclose(got[1], want[1], atol=1e-12)
-            np.testing.assert_array_equal(got[3], want[3])
-            np.testing.assert_array_equal(got[4], want[4])
-    assert seen >= 10 and 0 < rejected < seen  # both outcomes were compared
-    # several patterns in one batch (a run of the combination stage): the same values
-    for many, one in zip(solver._quick_checks_many(b_all, cam, groups), singles, strict=True):
-        assert len(many) == len(one)
-        for got, want in zip(many, one, strict=True):
-            assert (got is None) == (want is None)
-            if want is not None:
-                assert got[0] == want[0] and got[2] == want[2]
-                np.testing.assert_array_equal(got[1], want[1])
-                np.testing.assert_array_equal(got[3], want[3])
-                np.testing.assert_array_equal(got[4], want[4])
+            trials = int(rng.integers(1, 300))
+            mirror = pattern.chirality != 0
+            got = solver._quick(b_all, None, sel, assigns, cam, trials, (ang, tol, mirror))
+            assert len(got) == len(assigns)
+            for a, g in zip(assigns, got, strict=True):
+                want = _quick_check_numpy(solver, b_all, sel, a, cam, ang, tol, trials, mirror)
+                seen += 1
+                if want is None:
+                    rejected += 1
+                    assert g is None
+                    continue
+                assert g[0] == pytest.approx(want[0], rel=1e-9, abs=0)
+                assert g[2] == pytest.approx(want[2], rel=1e-9, abs=0)
+                np.testing.assert_allclose(g[1], want[1], rtol=0, atol=1e-12)
+                np.testing.assert_array_equal(g[3], want[3])
+                np.testing.assert_array_equal(g[4], want[4])
+    assert seen >= 20 and 0 < rejected < seen  # both outcomes were compared
 
 
-def test_runs_of_three_star_patterns_prepared_together_change_no_result(
-        solver, cat, cam, monkeypatch):
-    """The combination stage prepares its 3-star patterns in batches (matches and quick
-    checks of several patterns at once, each with its own trial number): the solutions
-    are those of trying one pattern at a time — path, trials, matches and p_false."""
-    rng = np.random.default_rng(44)
-    frames = [sky_frame(cat, cam, rng, n_false=8)[0] for _ in range(10)]
-    frames += [rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2))]
-    runs: list[int] = []
-    real = type(solver)._prepare_run
+def test_compiled_binomial_tail_and_chance_estimate_equal_the_reference():
+    from scipy.stats import binom
 
-    def spy(self, run, *args):
-        runs.append(len(run))
-        return real(self, run, *args)
+    from starid import kernels
+    from starid.verify import binomial_tail, expected_chance_patterns, spot_geometry
 
-    monkeypatch.setattr(type(solver), "_prepare_run", spy)
-    batched = [solver.solve(xy) for xy in frames]
-    assert sum(runs) > 2 * len(frames)  # the combination stage ran, in batches
-    monkeypatch.setattr(type(solver), "_prepare_run", lambda self, *args: None)
-    for xy, a in zip(frames, batched, strict=True):
-        b = solver.solve(xy)
-        assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches, a.matching_counter) \
-            == (b.ok, b.reason, b.path, b.patterns_tried, b.matches, b.matching_counter)
-        assert a.p_false == b.p_false
-        assert [c.p_false for c in a.candidates] == [c.p_false for c in b.candidates]
-
-
-def test_batched_chance_estimates_equal_the_single_ones():
-    from starid.verify import (
-        binomial_tail,
-        binomial_tail_many,
-        expected_chance_patterns,
-        expected_chance_patterns_many,
-    )
-
+    for m in (0, 1, 5, 20, 30):
+        for k in range(-1, m + 2):
+            for p in (0.0, 1e-9, 3e-5, 0.001, 0.02, 0.3, 0.9, 1.0):
+                want = binomial_tail(k, m, p)
+                got = kernels.binomial_tail(k, m, p)
+                assert got == pytest.approx(want, rel=1e-12, abs=1e-300), (k, m, p)
+                if 0 < k <= m and 0 < p < 1:  # and against an independent formula
+                    assert got == pytest.approx(float(binom.sf(k - 1, m, p)), rel=1e-9)
     rng = np.random.default_rng(2)
-    ang = np.radians(rng.uniform(0.5, 12.0, (4, 4)))
-    ang = (ang + ang.T) / 2
-    np.fill_diagonal(ang, 0.0)
-    tol = np.radians(rng.uniform(0.005, 0.04, (5, 4, 4)))
-    many = expected_chance_patterns_many(ang, tol, 5000, True)
-    assert many.tolist() == [expected_chance_patterns(ang, t, 5000, True) for t in tol]
-    k = np.array([-1, 0, 1, 3, 7, 21, 22])
-    p = np.array([0.3, 0.001, 0.01, 0.02, 0.5, 0.9, 0.1])
-    assert binomial_tail_many(k, 20, p).tolist() == [binomial_tail(int(a), 20, float(b))
-                                                     for a, b in zip(k, p, strict=True)]
+    for n in (3, 4, 6):
+        b = rng.normal([0, 0, 1], 0.1, (n, 3))
+        b /= np.linalg.norm(b, axis=1, keepdims=True)
+        ang = np.arccos(np.clip(b @ b.T, -1, 1))
+        np.fill_diagonal(ang, 0.0)
+        st, sg = kernels._spot_geometry(ang)
+        assert [(int(s), int(t), float(g)) for (s, t), g in zip(st, sg, strict=True)] \
+            == spot_geometry(ang)
+        for mirror in (True, False):
+            tol = np.radians(rng.uniform(0.005, 0.04, (n, n)))
+            want = expected_chance_patterns(ang, tol, 5000, mirror)
+            assert kernels._chance(ang, 2.0 * tol, 5000, mirror, st, sg) == pytest.approx(
+                want, rel=1e-14)
 
 
 def test_random_detections_are_never_accepted(solver, cam):

@@ -1,0 +1,599 @@
+"""Compiled (numba) trials of the lost-in-space search: match a pattern, quick-check it.
+
+Why compiled code: a lost-in-space frame with false stars among the brightest tries
+~90–200 patterns (Renken's Not-Modus, then every 3-star combination). In numpy a trial
+cost ~170–230 µs, almost all of it per-call overhead spread over many small operations
+(pattern windows, window look-ups, a few 3×3 SVDs, a KD-tree query of ~20 points, the
+false-match bookkeeping), not arithmetic: the slowest false8 frames took ~15 ms. Here one
+trial is a few µs to a few tens of µs (see the commit message for the benchmark figures),
+and :func:`search` walks a frame's whole pattern list in one call.
+
+The functions compute exactly what the numpy reference computes
+(:func:`starid.nstar.match_indexed`, the quick check of :mod:`starid.solver` with
+:mod:`starid.verify`'s chance estimate) — same rows in the same order, the same
+decisions; tests compare them on random patterns. They are compiled on first use and
+cached on disk (``cache=True``): a fresh process with an empty cache spends a few
+seconds compiling once.
+
+``ix`` below is :func:`index_arrays` of a :class:`starid.index.PatternIndex`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from starid.verify import DENSITY_SAFETY
+
+__all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", "search"]
+
+_jit = numba.njit(cache=True, nogil=True)
+
+# search() status (state[4]) and budget-note kinds (state[5])
+DONE, STRONG = 0, 1
+NOTE_NONE, NOTE_WORK, NOTE_PATTERNS = 0, 1, 2
+# association: angular slack (rad) of the neighbour-row annulus, far above the rounding
+# of an arccos near 0 (~1.5e-8 rad) and far below any match radius
+_SLACK = 1e-7
+
+
+def index_arrays(index) -> tuple:
+    """The arrays of a :class:`starid.index.PatternIndex` the kernels take, as one tuple."""
+    return (index.vectors, index.pair_i, index.pair_j, index.pair_cos, index.nbr_ptr,
+            index.nbr_idx, index.nbr_cos, index.nbr_bin, float(index.max_sep_rad))
+
+
+# --- matching (starid.nstar.match_indexed, level by level) ------------------------------
+
+
+@_jit
+def _pair_window(pair_cos, cmin, cmax):
+    """Rows of the descending ``pair_cos`` with cmin < c < cmax: [lo, hi)."""
+    a, b = 0, len(pair_cos)
+    while a < b:  # first row with c < cmax
+        h = (a + b) // 2
+        if pair_cos[h] < cmax:
+            b = h
+        else:
+            a = h + 1
+    lo = a
+    b = len(pair_cos)
+    while a < b:  # first row with c <= cmin
+        h = (a + b) // 2
+        if pair_cos[h] <= cmin:
+            b = h
+        else:
+            a = h + 1
+    return lo, max(lo, a)
+
+
+@_jit
+def _grown(a, k):
+    """``a`` (rows, cols) with twice the rows, the first k copied (loops, not slices:
+    slice assignment costs seconds of compile time)."""
+    out = np.empty((2 * max(len(a), 8), a.shape[1]), dtype=a.dtype)
+    for r in range(k):
+        for c in range(a.shape[1]):
+            out[r, c] = a[r, c]
+    return out
+
+
+@_jit
+def _dot(v, a, b):
+    return v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+
+
+@_jit
+def _mirror_ok(v, a, b, c, chirality):
+    # det[a, b, c], written as starid.nstar._chirality_ok writes it
+    det = (v[a, 0] * (v[b, 1] * v[c, 2] - v[b, 2] * v[c, 1])
+           - v[a, 1] * (v[b, 0] * v[c, 2] - v[b, 2] * v[c, 0])
+           + v[a, 2] * (v[b, 0] * v[c, 1] - v[b, 1] * v[c, 0]))
+    return (det > 0 and chirality == 1) or (det < 0 and chirality == -1)
+
+
+def scratch(ix) -> np.ndarray:
+    """The work array :func:`match` takes (all −1; it leaves it so)."""
+    return np.full(2 * len(ix[0]), -1, dtype=np.int64)
+
+
+@_jit
+def match(ix, cmin, cmax, chirality, max_partials, work):
+    """:func:`starid.nstar.match_indexed` of a pattern's windows (n, n) and mirror sign:
+    (rows (K, n), over, level) — ``over`` > 0 when level ``level`` would hold ``over``
+    partial assignments, more than ``max_partials`` (no rows then). ``work`` is
+    :func:`scratch` (reused across calls: no per-call clearing of catalogue-sized arrays).
+
+    The third star is not looked up in the first star's neighbour row but among its
+    partners in the pair list's window (0, 2): the same stored cosines, the same strict
+    test, in the same order (descending cosine, ties by index), so the same rows; only
+    first pairs whose second star has some partner in window (1, 2) are extended (the
+    rest extend to nothing; that mask is a superset, widened by a few ulps, since the
+    link test computes its cosine afresh)."""
+    v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
+    nbr_idx, nbr_cos, nbr_bin, max_sep = ix[5], ix[6], ix[7], ix[8]
+    n = cmin.shape[0]
+    n_cat = len(v)
+    lo, hi = _pair_window(pair_cos, cmin[0, 1], cmax[0, 1])
+    n_first = 2 * (hi - lo)
+    empty = np.zeros((0, n), dtype=np.int64)
+    if n == 2:
+        cur = np.empty((n_first, 2), dtype=np.int64)
+        for r in range(lo, hi):  # every i < j pair, then the same pairs swapped
+            cur[r - lo, 0], cur[r - lo, 1] = pair_i[r], pair_j[r]
+            cur[r - lo + hi - lo, 0], cur[r - lo + hi - lo, 1] = pair_j[r], pair_i[r]
+        return cur, 0, 0
+    if n_first == 0:
+        return empty, 0, 0
+    if n_first > max_partials:
+        return empty, n_first, 2
+    # window (0, 2) as linked lists per star in work[:N] (first entry, −1 = none),
+    # built backwards so that each list runs in pair-list order
+    lo2, hi2 = _pair_window(pair_cos, cmin[0, 2], cmax[0, 2])
+    nxt_e = np.empty(2 * (hi2 - lo2), dtype=np.int64)
+    other = np.empty(2 * (hi2 - lo2), dtype=np.int64)
+    e = 0
+    for r in range(hi2 - 1, lo2 - 1, -1):
+        x, y = pair_i[r], pair_j[r]
+        nxt_e[e], other[e], work[x] = work[x], y, e
+        nxt_e[e + 1], other[e + 1], work[y] = work[y], x, e + 1
+        e += 2
+    lo3, hi3 = _pair_window(pair_cos, cmin[1, 2] - 1e-15, cmax[1, 2] + 1e-15)
+    for r in range(lo3, hi3):
+        work[n_cat + pair_i[r]] = work[n_cat + pair_j[r]] = 1
+    cur = np.empty((16, n), dtype=np.int64)
+    k = 0
+    for swap in range(2):  # every i < j pair, then the same pairs swapped
+        for r in range(lo, hi):
+            a, b = (pair_j[r], pair_i[r]) if swap else (pair_i[r], pair_j[r])
+            if work[n_cat + b] < 0:
+                continue
+            e = work[a]
+            while e >= 0:
+                s = other[e]
+                e = nxt_e[e]
+                d = _dot(v, b, s)
+                if s == b or not (d > cmin[1, 2] and d < cmax[1, 2]):
+                    continue
+                if chirality != 0 and not _mirror_ok(v, a, b, s, chirality):
+                    continue
+                if k == len(cur):
+                    cur = _grown(cur, k)
+                cur[k, 0], cur[k, 1], cur[k, 2] = a, b, s
+                k += 1
+    for r in range(lo2, hi2):
+        work[pair_i[r]] = work[pair_j[r]] = -1
+    for r in range(lo3, hi3):
+        work[n_cat + pair_i[r]] = work[n_cat + pair_j[r]] = -1
+    nb = nbr_bin.shape[1] - 1
+    step = max_sep / nb
+    for m in range(3, n):  # further stars: the first star's neighbour row
+        if k == 0:
+            return empty, 0, 0
+        if k > max_partials:
+            return empty, k, m
+        b0 = min(max(int(math.acos(cmax[0, m]) / step), 0), nb)
+        b1 = min(max(int(math.acos(cmin[0, m]) / step) + 1, 0), nb)
+        nxt = np.empty((max(16, 2 * k), n), dtype=np.int64)
+        kn = 0
+        for p in range(k):
+            a = cur[p, 0]
+            for e in range(nbr_bin[a, b0], nbr_bin[a, b1]):
+                c = nbr_cos[e]
+                if not (c > cmin[0, m] and c < cmax[0, m]):
+                    continue
+                s = nbr_idx[e]
+                ok = True
+                for t in range(1, m):
+                    q = cur[p, t]
+                    d = _dot(v, q, s)
+                    if q == s or not (d > cmin[t, m] and d < cmax[t, m]):
+                        ok = False
+                        break
+                if ok:
+                    if kn == len(nxt):
+                        nxt = _grown(nxt, kn)
+                    for t in range(m):
+                        nxt[kn, t] = cur[p, t]
+                    nxt[kn, m] = s
+                    kn += 1
+        cur, k = nxt, kn
+    return _grown(cur, k)[:k], 0, 0
+
+
+# --- the quick check (Solver: rotation, association, false-match probability) ----------
+
+
+@_jit
+def binomial_tail(k, m, p):
+    """P(X ≥ k) for X ~ Binomial(m, p) (scipy's ``bdtrc(k − 1, m, p)``, to ~1e-15
+    relative): the terms summed from the smallest."""
+    if k <= 0:
+        return 1.0
+    if k > m:
+        return 0.0
+    p = min(max(p, 0.0), 1.0)
+    q = 1.0 - p
+    total = 0.0
+    coef = 1.0  # C(m, i), from i = m down
+    for i in range(m, k - 1, -1):
+        total += coef * p ** i * q ** (m - i)
+        coef = coef * i / (m - i + 1)
+    return total
+
+
+@_jit
+def _crossing_sin(d01, d0m, d1m):
+    # sin of starid.verify._crossing_angle
+    denom = math.sin(d0m) * math.sin(d1m)
+    if denom <= 0:
+        return math.sin(0.0)
+    c = (math.cos(d01) - math.cos(d0m) * math.cos(d1m)) / denom
+    return math.sin(math.acos(min(1.0, max(-1.0, c))))
+
+
+@_jit
+def _spot_geometry(a):
+    """:func:`starid.verify.spot_geometry`: rows (s, t) and sin γ per star m ≥ 2."""
+    n = a.shape[0]
+    st = np.zeros((max(n - 2, 0), 2), dtype=np.int64)
+    sg = np.zeros(max(n - 2, 0))
+    for m in range(2, n):
+        bs, bt, best = 0, 1, 0.0
+        for s in range(m):
+            for t in range(s + 1, m):
+                g = _crossing_sin(a[s, t], a[s, m], a[t, m])
+                if g > best:
+                    bs, bt, best = s, t, g
+        st[m - 2, 0], st[m - 2, 1], sg[m - 2] = bs, bt, best
+    return st, sg
+
+
+@_jit
+def _chance(a, w, n_catalog, mirror_checked, st, sg):
+    """:func:`starid.verify.expected_chance_patterns` (``w`` = 2 × the windows), the
+    same operations in the same order."""
+    rho = DENSITY_SAFETY * n_catalog / (4.0 * np.pi)
+    e = float(n_catalog) * rho * 2.0 * np.pi * max(math.sin(a[0, 1]), 1e-6) * w[0, 1]
+    e *= 2.0
+    for r in range(len(sg)):
+        m = r + 2
+        spots = 1.0 if (m >= 3 or mirror_checked) else 2.0
+        e *= rho * spots * w[st[r, 0], m] * w[st[r, 1], m] / max(sg[r], 0.05)
+    return e
+
+
+@_jit
+def _nearest(ix, r, anchor, radius, bound2):
+    """The catalogue star nearest to ``r`` (ICRS, ~unit) with squared chord < bound2, or
+    −1: the anchor itself, then the anchor's neighbour row in the annulus of r's angle to
+    the anchor ± radius — or every star, when that annulus leaves the row's reach."""
+    v, nbr_idx, nbr_bin, max_sep = ix[0], ix[5], ix[7], ix[8]
+    best, bj = bound2, -1
+    dx, dy, dz = r[0] - v[anchor, 0], r[1] - v[anchor, 1], r[2] - v[anchor, 2]
+    d2 = dx * dx + dy * dy + dz * dz
+    if d2 < best:
+        best, bj = d2, anchor
+    c = r[0] * v[anchor, 0] + r[1] * v[anchor, 1] + r[2] * v[anchor, 2]
+    theta = math.acos(min(1.0, max(-1.0, c)))
+    if theta + radius + 2 * _SLACK < max_sep:
+        nb = nbr_bin.shape[1] - 1
+        step = max_sep / nb
+        b0 = min(max(int((theta - radius - _SLACK) / step), 0), nb)
+        b1 = min(max(int((theta + radius + _SLACK) / step) + 1, 0), nb)
+        for e in range(nbr_bin[anchor, b0], nbr_bin[anchor, b1]):
+            s = nbr_idx[e]
+            dx, dy, dz = r[0] - v[s, 0], r[1] - v[s, 1], r[2] - v[s, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < best:
+                best, bj = d2, s
+    else:
+        for s in range(len(v)):
+            dx, dy, dz = r[0] - v[s, 0], r[1] - v[s, 1], r[2] - v[s, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < best:
+                best, bj = d2, s
+    return bj, best
+
+
+@_jit
+def _rotation(b, vc):
+    """Least-squares rotation (cam ← icrs) of matched directions, as
+    ``starid.solver._rotation_from_pairs`` (SVD of B = Σ b cᵀ, reflection excluded);
+    (R, proper) — proper False if collinear. The 3×3 SVD is one-sided Jacobi (columns
+    of B orthogonalised by plane rotations): no LAPACK call per candidate."""
+    A = np.zeros((3, 3))
+    for s in range(b.shape[0]):
+        for i in range(3):
+            for j in range(3):
+                A[i, j] += b[s, i] * vc[s, j]
+    V = np.zeros((3, 3))
+    V[0, 0] = V[1, 1] = V[2, 2] = 1.0
+    for _ in range(30):
+        done = True
+        for p, q in ((0, 1), (0, 2), (1, 2)):
+            alpha = A[0, p] * A[0, p] + A[1, p] * A[1, p] + A[2, p] * A[2, p]
+            beta = A[0, q] * A[0, q] + A[1, q] * A[1, q] + A[2, q] * A[2, q]
+            gamma = A[0, p] * A[0, q] + A[1, p] * A[1, q] + A[2, p] * A[2, q]
+            if abs(gamma) <= 1e-15 * math.sqrt(alpha * beta):
+                continue
+            done = False
+            zeta = (beta - alpha) / (2.0 * gamma)
+            t = math.copysign(1.0, zeta) / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+            c = 1.0 / math.sqrt(1.0 + t * t)
+            s = c * t
+            for i in range(3):
+                ap, aq = A[i, p], A[i, q]
+                A[i, p], A[i, q] = c * ap - s * aq, s * ap + c * aq
+                vp, vq = V[i, p], V[i, q]
+                V[i, p], V[i, q] = c * vp - s * vq, s * vp + c * vq
+        if done:
+            break
+    # singular values: the column norms; the two largest (scalar code: numpy calls
+    # inside kernels cost compile time)
+    s0 = math.sqrt(A[0, 0] * A[0, 0] + A[1, 0] * A[1, 0] + A[2, 0] * A[2, 0])
+    s1 = math.sqrt(A[0, 1] * A[0, 1] + A[1, 1] * A[1, 1] + A[2, 1] * A[2, 1])
+    s2 = math.sqrt(A[0, 2] * A[0, 2] + A[1, 2] * A[1, 2] + A[2, 2] * A[2, 2])
+    if s0 >= s1 and s0 >= s2:
+        i0, i1 = (0, 1) if s1 >= s2 else (0, 2)
+    elif s1 >= s2:
+        i0, i1 = (1, 0) if s0 >= s2 else (1, 2)
+    else:
+        i0, i1 = (2, 0) if s0 >= s1 else (2, 1)
+    sa = max(s0, s1, s2)
+    sb = s1 if i1 == 1 else (s0 if i1 == 0 else s2)
+    R = np.zeros((3, 3))
+    if sb < 1e-12 * max(sa, 1e-300):
+        return R, False
+    # R = U diag(1, 1, det U · det V) Vᵀ: the third singular pair is the cross products
+    # of the first two
+    for i in range(3):
+        A[i, i0] /= sa
+        A[i, i1] /= sb
+    u0x, u0y, u0z, u1x, u1y, u1z = A[0, i0], A[1, i0], A[2, i0], A[0, i1], A[1, i1], A[2, i1]
+    v0x, v0y, v0z, v1x, v1y, v1z = V[0, i0], V[1, i0], V[2, i0], V[0, i1], V[1, i1], V[2, i1]
+    u2 = (u0y * u1z - u0z * u1y, u0z * u1x - u0x * u1z, u0x * u1y - u0y * u1x)
+    v2 = (v0y * v1z - v0z * v1y, v0z * v1x - v0x * v1z, v0x * v1y - v0y * v1x)
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = A[i, i0] * V[j, i0] + A[i, i1] * V[j, i1] + u2[i] * v2[j]
+    return R, True
+
+
+@_jit
+def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, radius,
+                 floor):
+    """The solver's quick check of every assignment (K, n) of one pattern (detections
+    ``sel`` in matching order, image pair ``angles`` and window half-widths ``tol``):
+    the rotation from the pattern, every detection rotated into ICRS and associated
+    one-to-one to its nearest catalogue star within ``radius`` (the closest detection
+    keeps a star, ties to the lower index), and — where the pattern kept its stars —
+    p_false = min(1, trials × E_chance(windows shrunk to the fit, ≥ floor) ×
+    P(Binomial(other detections, p_hit) ≥ other matches)).
+
+    Returns (ok (K,), p_false, R (K, 3, 3), e_trials, det (K, N), cat (K, N), matched
+    (K,)): candidate k's matches are det[k, :matched[k]] (ascending) → cat[k, ...]."""
+    v, nbr_ptr, max_sep = ix[0], ix[4], ix[8]
+    n_k, n = assigns.shape
+    n_det = len(b_all)
+    n_cat = len(v)
+    ok = np.zeros(n_k, dtype=np.bool_)
+    pf = np.zeros(n_k)
+    rots = np.zeros((n_k, 3, 3))
+    e_tr = np.zeros(n_k)
+    det = np.zeros((n_k, n_det), dtype=np.int64)
+    cat = np.zeros((n_k, n_det), dtype=np.int64)
+    matched = np.zeros(n_k, dtype=np.int64)
+    bound = 2 * math.sin(radius / 2)
+    bound2 = bound * bound
+    st, sg = _spot_geometry(angles)
+    bs = np.empty((n, 3))
+    vc = np.empty((n, 3))
+    for s in range(n):
+        for j in range(3):
+            bs[s, j] = b_all[sel[s], j]
+    tgt = np.empty(n_det, dtype=np.int64)
+    own = np.empty(n_det, dtype=np.int64)
+    dist = np.empty(n_det)
+    r = np.empty(3)
+    w = np.zeros((n, n))
+    area = 2 * np.pi * (1 - math.cos(max_sep))
+    for k in range(n_k):
+        anchor = assigns[k, 0]
+        for s in range(n):
+            for j in range(3):
+                vc[s, j] = v[assigns[k, s], j]
+        R, proper = _rotation(bs, vc)
+        if not proper:
+            continue
+        for d in range(n_det):
+            for j in range(3):
+                r[j] = b_all[d, 0] * R[0, j] + b_all[d, 1] * R[1, j] + b_all[d, 2] * R[2, j]
+            tgt[d], d2 = _nearest(ix, r, anchor, radius, bound2)
+            dist[d] = math.sqrt(d2)
+        # one-to-one: a star claimed twice stays with the closer detection (ties: the
+        # lower index); own[d] the star detection d keeps, or −1
+        nm = 0
+        for d in range(n_det):
+            own[d] = tgt[d]
+            if tgt[d] < 0:
+                continue
+            for e in range(n_det):
+                if e != d and tgt[e] == tgt[d] and (
+                        dist[e] < dist[d] or (dist[e] == dist[d] and e < d)):
+                    own[d] = -1
+                    break
+            if own[d] >= 0:
+                det[k, nm], cat[k, nm] = d, own[d]
+                nm += 1
+        kept = True  # every pattern star on its assigned star
+        for s in range(n):
+            if own[sel[s]] != assigns[k, s]:
+                kept = False
+        if not kept:
+            continue
+        for s in range(n):
+            for t in range(s + 1, n):
+                c = min(1.0, max(-1.0, _dot(v, assigns[k, s], assigns[k, t])))
+                resid = abs(angles[s, t] - math.acos(c))
+                w[s, t] = 2.0 * min(max(resid, floor), tol[s, t])
+        e_trials = trials * _chance(angles, w, n_cat, mirror_checked, st, sg)
+        cnt = nbr_ptr[anchor + 1] - nbr_ptr[anchor]
+        rho = max(cnt / area, n_cat / (4 * np.pi)) * DENSITY_SAFETY
+        p_hit = min(1.0, rho * np.pi * (radius * radius))
+        p = e_trials * binomial_tail(nm - n, n_det - n, p_hit)
+        ok[k], pf[k], e_tr[k], matched[k] = True, min(1.0, p), e_trials, nm
+        for i in range(3):
+            for j in range(3):
+                rots[k, i, j] = R[i, j]
+    return ok, pf, rots, e_tr, det, cat, matched
+
+
+# --- a frame's whole search -------------------------------------------------------------
+
+
+@_jit
+def _closest_pair_first(ang, pat):
+    """``starid.nstar.closest_pair_first`` of the detections ``pat`` (ties: row-major)."""
+    n = len(pat)
+    best, bi, bj = np.inf, 0, 1
+    for i in range(n):
+        for j in range(i + 1, n):
+            if ang[pat[i], pat[j]] < best:
+                best, bi, bj = ang[pat[i], pat[j]], i, j
+    sel = np.empty(n, dtype=np.int64)
+    sel[0], sel[1] = pat[bi], pat[bj]
+    k = 2
+    for m in range(n):
+        if m != bi and m != bj:
+            sel[k] = pat[m]
+            k += 1
+    return sel
+
+
+@_jit
+def _cross_norm(ux, uy, uz, vx, vy, vz):
+    x, y, z = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    return math.sqrt(x * x + y * y + z * z)
+
+
+@_jit
+def chirality(b, min_altitude):
+    """``starid.nstar.chirality_of`` (same formula): sign of det[b0, b1, b2], 0 when
+    the triangle's smallest altitude is ≤ ``min_altitude``."""
+    ax, ay, az = b[0, 0], b[0, 1], b[0, 2]
+    bx, by, bz = b[1, 0], b[1, 1], b[1, 2]
+    cx, cy, cz = b[2, 0], b[2, 1], b[2, 2]
+    det = ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx)
+    longest = max(_cross_norm(ax, ay, az, bx, by, bz), _cross_norm(bx, by, bz, cx, cy, cz),
+                  _cross_norm(cx, cy, cz, ax, ay, az))
+    if longest == 0.0 or abs(det) / longest <= min_altitude:
+        return 0
+    return 1 if det > 0 else -1
+
+
+@_jit
+def pattern_of(pat, ang, tol, cmin, cmax, b_all):
+    """A pattern's detections in matching order (closest pair first) and its windows at
+    one focal guess: (sel, angles, tol, cos_min, cos_max, chirality)."""
+    sel = _closest_pair_first(ang, pat)
+    n = len(sel)
+    a, t, lo, hi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    bs = np.empty((n, 3))
+    t_max = -np.inf
+    for i in range(n):
+        for j in range(3):
+            bs[i, j] = b_all[sel[i], j]
+        for j in range(n):
+            t_max = max(t_max, tol[sel[i], sel[j]])
+            a[i, j], t[i, j] = ang[sel[i], sel[j]], tol[sel[i], sel[j]]
+            lo[i, j], hi[i, j] = cmin[sel[i], sel[j]], cmax[sel[i], sel[j]]
+    chir = chirality(bs, 2.0 * t_max) if n >= 3 else 0
+    return sel, a, t, lo, hi, chir
+
+
+@_jit
+def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol, cmin,
+           cmax, radius, floor, p_false_max, max_partials):
+    """Walk the pattern list ``pats`` (P, 8; ``plen`` stars each) × focal guesses (the
+    stacked tables: ``b_cams`` (C, N, 3), pair ``ang``, ``tol``, ``cmin``, ``cmax`` (C, N, N),
+    ``radius`` and ``floor`` per guess) as ``Solver._solve_at`` does, from the trial at
+    ``state`` = [pattern, guess, tried, first matching counter (−1: none), …], and stop
+    after the first trial with a candidate whose quick p_false ≤ ``p_false_max``.
+
+    Updates ``state``: [pattern, guess of the stopping trial (or P, 0), tried, first
+    counter, its own status (DONE / STRONG), note kind, note a, note b], where the note is
+    the last budget event (NOTE_WORK: ``a`` partials at level ``b``; NOTE_PATTERNS: the
+    trial budget reached at ``a`` trials), and the no-match sets (bit masks per guess).
+    Returns the stopping trial's (sel, assignments, quick checks) and the weak candidates
+    met on the way: p_false (W,) and (W, 20) rows of pattern, guess, trial, n, sel (8),
+    assignment (8)."""
+    n_cams = b_cams.shape[0]
+    pos, ci, tried, first = state[0], state[1], state[2], state[3]
+    work = np.empty(2 * len(ix[0]), dtype=np.int64)
+    for i in range(len(work)):
+        work[i] = -1
+    wp = np.empty((16, 1))
+    wi = np.empty((16, 20), dtype=np.int64)  # pattern, guess, trial, n, sel, assignment
+    nw = 0
+    while pos < len(pats):
+        if ci == 0 and tried >= budget:
+            state[5], state[6] = NOTE_PATTERNS, tried
+            break
+        n = plen[pos]
+        pat = pats[pos, :n]
+        mask = 0
+        for i in range(n):
+            mask |= 1 << pat[i]
+        tried += 1
+        skip = False
+        for e in range(n_no_match[ci]):
+            if no_match[ci, e] & mask == no_match[ci, e]:
+                skip = True
+                break
+        if not skip:
+            sel, a, t, lo, hi, chir = pattern_of(pat, ang[ci], tol[ci], cmin[ci], cmax[ci],
+                                                 b_cams[ci])
+            rows, over, level = match(ix, lo, hi, chir, max_partials, work)
+            if over > 0:
+                state[5], state[6], state[7] = NOTE_WORK, over, level
+            else:
+                if first < 0:
+                    first = len(rows)
+                if len(rows) == 0:
+                    no_match[ci, n_no_match[ci]] = mask
+                    n_no_match[ci] += 1
+                else:
+                    q = quick_checks(ix, b_cams[ci], sel, rows, a, t, chir != 0, tried,
+                                     radius[ci], floor[ci])
+                    strong = False
+                    for k in range(len(rows)):
+                        if not q[0][k]:
+                            continue
+                        if q[1][k] <= p_false_max:
+                            strong = True
+                            continue
+                        if nw == len(wi):
+                            wi = _grown(wi, nw)
+                            wp = _grown(wp, nw)
+                        wp[nw, 0] = q[1][k]
+                        wi[nw, 0], wi[nw, 1], wi[nw, 2], wi[nw, 3] = pos, ci, tried, n
+                        for i in range(n):
+                            wi[nw, 4 + i], wi[nw, 12 + i] = sel[i], rows[k, i]
+                        nw += 1
+                    if strong:
+                        state[0], state[1], state[2], state[3], state[4] = (
+                            pos, ci, tried, first, STRONG)
+                        return sel, rows, q, wp[:nw, 0], wi[:nw]
+        ci += 1
+        if ci == n_cams:
+            pos, ci = pos + 1, 0
+    state[0], state[1], state[2], state[3], state[4] = pos, ci, tried, first, DONE
+    n_det = b_cams.shape[1]
+    q = (np.zeros(0, dtype=np.bool_), np.zeros(0), np.zeros((0, 3, 3)), np.zeros(0),
+         np.zeros((0, n_det), dtype=np.int64), np.zeros((0, n_det), dtype=np.int64),
+         np.zeros(0, dtype=np.int64))
+    return (np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64), q,
+            wp[:nw, 0], wi[:nw])
