@@ -521,3 +521,37 @@ def test_tracking_refuses_a_two_star_fix_that_leaves_the_roll_open(cat, cam, sol
     far = [0, int(np.argmax(np.linalg.norm(xy_all - xy_all[0], axis=1)))]
     sol = solver.solve(xy_all[far], prior=starid.Prior(q, 0.05))
     assert sol.ok and sol.mode == "tracking" and attitude_error_deg(sol, q) < 0.05
+
+
+def test_compiled_nearest_star_equals_the_kd_tree(solver):
+    """Association in the kernel scans the anchor's neighbour row in an annulus (or every
+    star, beyond the row's reach): the nearest star within the radius, as a KD-tree gives."""
+    from scipy.spatial import cKDTree
+
+    from starid import kernels
+
+    rng = np.random.default_rng(9)
+    v = solver.vectors
+    tree = cKDTree(v)
+    radius = np.radians(0.05)
+    bound = 2 * np.sin(radius / 2)
+    found = far = 0
+    for _ in range(3000):
+        anchor = int(rng.integers(len(v)))
+        # a direction near a catalogue star near the anchor, or anywhere on the sky
+        if rng.random() < 0.8:
+            nbrs = solver.index.nbr_idx[solver.index.nbr_ptr[anchor]:
+                                        solver.index.nbr_ptr[anchor + 1]]
+            r = v[rng.choice(nbrs)] + rng.normal(scale=radius / 2, size=3)
+        else:
+            r = rng.normal(size=3)
+        r /= np.linalg.norm(r)
+        far += float(r @ v[anchor]) < np.cos(solver.max_sep_rad)
+        d, j = tree.query(r, distance_upper_bound=bound)
+        got, d2 = kernels._nearest(solver._ix, r, anchor, radius, bound * bound)
+        if np.isfinite(d):
+            found += 1
+            assert got == j and np.sqrt(d2) == pytest.approx(d, rel=1e-12)
+        else:
+            assert got == -1
+    assert found > 1000 and far > 100
