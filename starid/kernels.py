@@ -209,8 +209,8 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
 
 @_jit
 def binomial_tail(k, m, p):
-    """P(X ≥ k) for X ~ Binomial(m, p) (scipy's ``bdtrc(k − 1, m, p)``, to ~1e-15
-    relative): the terms summed from the smallest."""
+    """P(X ≥ k) for X ~ Binomial(m, p) (scipy's ``bdtrc(k − 1, m, p)``, to ~1e-14
+    relative for the m ≤ 30 detections used): the terms summed from the smallest."""
     if k <= 0:
         return 1.0
     if k > m:
@@ -230,7 +230,7 @@ def _crossing_sin(d01, d0m, d1m):
     # sin of starid.verify._crossing_angle
     denom = math.sin(d0m) * math.sin(d1m)
     if denom <= 0:
-        return math.sin(0.0)
+        return 0.0
     c = (math.cos(d01) - math.cos(d0m) * math.cos(d1m)) / denom
     return math.sin(math.acos(min(1.0, max(-1.0, c))))
 
