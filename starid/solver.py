@@ -526,13 +526,12 @@ class Solver:
         pix = np.array([cam.pixel_scale_rad for cam in cams])
         radius = self._match_radius_px() * pix
         floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
-        stack = [np.stack([getattr(t, f) for t in tables])
-                 for f in ("angles", "tol", "cos_min", "cos_max")]
+        stack = [np.stack(b_cams)] + [np.stack([getattr(t, f) for t in tables])
+                                      for f in ("angles", "tol", "cos_min", "cos_max")]
         while True:
             sel, rows, q, wp, wi = kernels.search(
                 self._ix, state, pats, plen, self.max_patterns * n_cams, no_match,
-                n_no_match, np.stack(b_cams), *stack, radius, floor, self.p_false_max,
-                self.work_budget)
+                n_no_match, *stack, radius, floor, self.p_false_max, self.work_budget)
             if len(wp):
                 run.weak_rows.append((wp, wi, paths))
             pos, ci, run.tried, first, status, note, a, b = state.tolist()
