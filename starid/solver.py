@@ -65,6 +65,7 @@ from starid.nstar import (
     match_faithful,
     match_indexed,
 )
+from starid.search_order import combination_order
 from starid.verify import (
     DENSITY_SAFETY,
     binomial_tail,
@@ -429,8 +430,9 @@ class Solver:
         """Patterns in a fixed order: Renken's main pattern, his Not-Modus ((n−1)- and
         (n−2)-star sub-patterns, then fainter detections swapped in), then — our
         extension for frames with several false objects among the brightest — every
-        3-star and then 4-star combination of the brightest ``max_detections``, brightest
-        combinations first (ordered by their faintest member). Verification against all
+        3-star combination of the brightest ``max_detections``, the most probably clean
+        first given the failures so far (:func:`starid.search_order.combination_order`),
+        then every 4-star one by its faintest member. Verification against all
         other detections is what makes a 3-star pattern trustworthy."""
         n = min(self.n_max, n_det)
         base = tuple(range(n))
@@ -455,14 +457,17 @@ class Solver:
                 pat = tuple(sorted((set(base) - {out}) | {extra}))
                 if fresh(pat):
                     yield pat, f"not-modus swap {extra} for {out}"
-        for k in (3, 4):  # 3-star patterns first: among false objects they are more often clean
-            if k < self.n_min:
-                continue
-            for last in range(k - 1, n_det):
-                for head in itertools.combinations(range(last), k - 1):
-                    pat = (*head, last)
-                    if fresh(pat):
-                        yield pat, f"combination {list(pat)}"
+        # 3-star patterns first: among false objects they are more often clean; most
+        # probably clean first, given that every pattern so far held a false object
+        if self.n_min <= 3:
+            for pat in combination_order(n_det, list(seen)):
+                if fresh(pat):
+                    yield pat, f"combination {list(pat)}"
+        for last in range(3, n_det):
+            for head in itertools.combinations(range(last), 3):
+                pat = (*head, last)
+                if fresh(pat):
+                    yield pat, f"combination {list(pat)}"
 
     def _solve_at(self, xy: NDArray, cams: list[Camera]) -> tuple[Solution, int]:
         """Try patterns in order; each pattern at every focal-length guess (so the right
