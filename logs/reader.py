@@ -31,7 +31,10 @@ import json
 import os
 import struct
 import warnings
+import zlib
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -337,15 +340,33 @@ class McapLogReader:
         return Message(record.log_time / 1e9, topic, payload, record.data if keep else None)
 
     # ------------------------------------------------------------------ pass 2: merge
-    def _chunk_messages(self, f: io.BufferedReader, ref: _ChunkRef) -> list[McapMessage]:
-        f.seek(ref.offset + _RECORD_HEADER.size)
-        chunk = Chunk.read(ReadDataStream(io.BytesIO(f.read(ref.length))))
+    def _chunk_messages(self, data: bytes | memoryview) -> list[McapMessage]:
+        """The messages of a chunk's decompressed records (see :func:`_chunk_records`); its
+        schemas and channels, which a summary need not repeat, are taken on the way.
+
+        One ``struct`` call per message instead of mcap's stream reads (five per message):
+        a replay of 512×480 video parsed ~19 messages per frame here."""
+        view = memoryview(data)
         out = []
-        for r in breakup_chunk(chunk, validate_crc=True):
-            if isinstance(r, McapMessage):
-                out.append(r)
-            else:  # schemas and channels a summary did not repeat
-                self._take(r)
+        pos, end = 0, len(view)
+        while pos < end:
+            opcode, length = _RECORD_HEADER.unpack_from(view, pos)
+            pos += _RECORD_HEADER.size
+            stop = pos + length
+            if stop > end:
+                raise ValueError(f"a record of {length} bytes overruns its chunk")
+            if opcode == Opcode.MESSAGE:
+                if length < _MESSAGE_HEAD.size:
+                    raise ValueError(f"a message record of {length} bytes")
+                channel_id, sequence, log_time, publish_time = _MESSAGE_HEAD.unpack_from(
+                    view, pos)
+                out.append(McapMessage(channel_id=channel_id, log_time=log_time,
+                                       data=bytes(view[pos + _MESSAGE_HEAD.size:stop]),
+                                       publish_time=publish_time, sequence=sequence))
+            elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
+                stream = ReadDataStream(io.BytesIO(view[pos:stop]))
+                self._take((Schema if opcode == Opcode.SCHEMA else Channel).read(stream))
+            pos = stop
         return out
 
     def _broken_chunk(self, ref: _ChunkRef, exc: Exception) -> None:
@@ -359,23 +380,33 @@ class McapLogReader:
         warnings.warn(str(self.problem), McapReadWarning, stacklevel=4)
 
     def raw_records(self) -> Iterator[tuple[ChannelInfo, McapMessage]]:
-        """Undecoded ``(channel, mcap message)`` pairs in log-time order (all topics)."""
+        """Undecoded ``(channel, mcap message)`` pairs in log-time order (all topics).
+
+        Chunks are read, decompressed and CRC-checked :data:`_PREFETCH` ahead by a thread:
+        those steps release the GIL, so they overlap the caller's work (a replay spent
+        ~0.4 ms per 512×480 frame in them, on the thread that runs the filter)."""
         pending = sorted(self._chunks, key=lambda c: (c.start_ns, c.offset))
         heap: list[tuple[int, int, int, McapMessage]] = [
             (m.log_time, -1, i, m) for i, m in enumerate(self._loose)]
         heapq.heapify(heap)
         nxt = 0
-        with open(self.path, "rb") as f:
+        with open(self.path, "rb") as f, ThreadPoolExecutor(1, "mcap-read") as pool:
+            loader = _ChunkLoader(f.fileno())
+            loads = deque(pool.submit(loader.records, ref) for ref in pending[:_PREFETCH])
             while heap or nxt < len(pending):
                 while nxt < len(pending) and (not heap or pending[nxt].start_ns <= heap[0][0]):
                     ref = pending[nxt]
+                    if nxt + _PREFETCH < len(pending):
+                        loads.append(pool.submit(loader.records, pending[nxt + _PREFETCH]))
                     try:
-                        msgs = self._chunk_messages(f, ref)
+                        msgs = self._chunk_messages(loads.popleft().result())
                     except Exception as exc:  # only a header-indexed file gets here
                         self._broken_chunk(ref, exc)
                         heap = [h for h in heap if h[1] < ref.offset]
                         heapq.heapify(heap)
                         pending = []
+                        for load in loads:
+                            load.cancel()
                         break
                     for i, m in enumerate(msgs):
                         heapq.heappush(heap, (m.log_time, ref.offset, i, m))
@@ -401,6 +432,51 @@ class McapLogReader:
         if name not in self.attachments:
             return None
         return json.loads(self.attachments[name][1])
+
+
+# Chunks read ahead of the one being merged (each ~1 MB of records).
+_PREFETCH = 2
+_CHUNK_HEAD = struct.Struct("<QQQII")  # times, uncompressed size and CRC, compression length
+_LENGTH = struct.Struct("<Q")
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+
+
+class _ChunkLoader:
+    """Chunk records from the file, decompressed and CRC-checked, for one reading thread
+    (it keeps a zstd context; ``os.pread`` leaves the file position alone)."""
+
+    def __init__(self, fd: int) -> None:
+        self._fd = fd
+        self._zstd: Any = None
+
+    def records(self, ref: _ChunkRef) -> bytes | memoryview:
+        body = os.pread(self._fd, ref.length, ref.offset + _RECORD_HEADER.size)
+        if len(body) != ref.length:
+            raise EOFError(f"chunk cut short: {len(body)} of {ref.length} bytes")
+        _, _, size, crc, n = _CHUNK_HEAD.unpack_from(body)
+        pos = _CHUNK_HEAD.size + n
+        compression = body[_CHUNK_HEAD.size:pos].decode()
+        (length,) = _LENGTH.unpack_from(body, pos)
+        pos += _LENGTH.size
+        if pos + length > len(body):
+            raise EOFError(f"chunk data of {length} bytes overruns its record")
+        data: bytes | memoryview = memoryview(body)[pos:pos + length]
+        if compression == "zstd":
+            if self._zstd is None:
+                import zstandard
+
+                self._zstd = zstandard.ZstdDecompressor()
+            data = self._zstd.decompress(data, max_output_size=size)
+        elif compression == "lz4":
+            import lz4.frame
+
+            data = lz4.frame.decompress(data)
+        elif compression:
+            raise ValueError(f"unsupported chunk compression {compression!r}")
+        if crc and zlib.crc32(data) != crc:  # 0: the writer computed none
+            raise ValueError(f"chunk CRC mismatch: expected {crc}, calculated "
+                             f"{zlib.crc32(data)}")
+        return data
 
 
 def read_mcap(path: str | os.PathLike[str], *, topic_map: Mapping[str, str] | None = None,

@@ -124,6 +124,15 @@ def multiply(p: ArrayLike, q: ArrayLike) -> Array:
     call :func:`normalize` before storing.
     """
     p, q = _as_quat(p), _as_quat(q)
+    if p.ndim == 1 and q.ndim == 1:  # one pair (per frame in the estimator): in floats,
+        pw, px, py, pz = p.tolist()  # the same operations in the same order as below
+        qw, qx, qy, qz = q.tolist()
+        return np.array([
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ])
     pw, px, py, pz = np.moveaxis(p, -1, 0)
     qw, qx, qy, qz = np.moveaxis(q, -1, 0)
     return np.stack(

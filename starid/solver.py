@@ -62,6 +62,7 @@ from starid.nstar import (
     match_faithful,
     match_indexed,
 )
+from starid.search_order import combination_order
 from starid.verify import DENSITY_SAFETY, binomial_tail
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
@@ -419,8 +420,9 @@ class Solver:
         """Patterns in a fixed order: Renken's main pattern, his Not-Modus ((n−1)- and
         (n−2)-star sub-patterns, then fainter detections swapped in), then — our
         extension for frames with several false objects among the brightest — every
-        3-star and then 4-star combination of the brightest ``max_detections``, brightest
-        combinations first (ordered by their faintest member). Verification against all
+        3-star combination of the brightest ``max_detections``, the most probably clean
+        first given the failures so far (:func:`starid.search_order.combination_order`),
+        then every 4-star one by its faintest member. Verification against all
         other detections is what makes a 3-star pattern trustworthy."""
         n = min(self.n_max, n_det)
         base = tuple(range(n))
@@ -445,20 +447,24 @@ class Solver:
                 pat = tuple(sorted((set(base) - {out}) | {extra}))
                 if fresh(pat):
                     yield pat, f"not-modus swap {extra} for {out}"
-        for k in (3, 4):  # 3-star patterns first: among false objects they are more often clean
-            if k < self.n_min:
-                continue
-            for last in range(k - 1, n_det):
-                for head in itertools.combinations(range(last), k - 1):
-                    pat = (*head, last)
-                    if fresh(pat):
-                        yield pat, f"combination {list(pat)}"
+        # 3-star patterns first: among false objects they are more often clean; most
+        # probably clean first, given that every pattern so far held a false object
+        if self.n_min <= 3:
+            for pat in combination_order(n_det, list(seen)):
+                if fresh(pat):
+                    yield pat, f"combination {list(pat)}"
+        for last in range(3, n_det):
+            for head in itertools.combinations(range(last), 3):
+                pat = (*head, last)
+                if fresh(pat):
+                    yield pat, f"combination {list(pat)}"
 
     def _pattern_list(self, n_det: int) -> tuple[NDArray[np.int64], NDArray[np.int64],
                                                  list[str]]:
-        """The first ``max_patterns`` + 1 patterns of :meth:`_patterns` (a function of
-        the detection count alone, so computed once per count) for :func:`kernels.search`:
-        detections (P, 8), their counts (P,) and the paths."""
+        """The first ``max_patterns`` + 1 patterns of :meth:`_patterns` for
+        :func:`kernels.search`: detections (P, 8), their counts (P,) and the paths. The
+        order is a function of the detection count alone (the search reaches a pattern
+        only after every earlier one failed), so it is computed once per count."""
         if n_det not in self._pattern_lists:
             pats = list(itertools.islice(self._patterns(n_det), self.max_patterns + 1))
             arr = np.zeros((len(pats), 8), dtype=np.int64)

@@ -542,7 +542,7 @@ def test_no_warning_for_intact_file(tmp_path: Path) -> None:
         assert len(list(McapSource(path))) == McapLogReader(path).message_count
 
 
-@pytest.mark.parametrize("case", range(4))
+@pytest.mark.parametrize("case", range(5))
 def test_annotation_bytes_parse_to_the_message_built_object_by_object(case):
     from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
 
@@ -557,7 +557,9 @@ def test_annotation_bytes_parse_to_the_message_built_object_by_object(case):
     args = [(case * 10**9 + 123, det, ident, rng.uniform(0, 500, (7, 2)), [det[:4]]),
             (0, None, (), None, ()),
             (2**40, np.zeros((0, 2)), [], np.zeros((0, 2)), []),
-            (5, det, (), None, [det[:3], det[3:9]])][case]
+            (5, det, (), None, [det[:3], det[3:9]]),
+            # layers longer than the varint table (2¹¹ bytes: ≥ 103 points)
+            (7, rng.uniform(0, 500, (300, 2)), ident, rng.uniform(0, 500, (120, 2)), [])][case]
     data = fg.encode_annotations_bytes(*args)
     assert ImageAnnotations.FromString(data) == fg._encode_annotations_by_objects(*args)
     assert fg.encode_annotations(*args) == fg._encode_annotations_by_objects(*args)
@@ -578,3 +580,24 @@ def test_protobuf_bytes_are_written_as_given_and_raw_frames_read_back(tmp_path):
     assert [m.raw for m in got] == [data, fg.encode_raw_image(3_000_000_000, img,
                                                               "camera").SerializeToString()]
     assert all(np.array_equal(m.payload, img) for m in got)
+
+
+def test_json_dumps_equals_the_converted_copy():
+    # dumps skips to_jsonable's copy unless a non-finite float needs it: the text is the same
+    import json
+
+    from logs.jsonio import dumps, to_jsonable
+
+    rng = np.random.default_rng(3)
+    cases = [
+        {"q": rng.normal(size=4), "n": np.int64(7), "f32": np.float32(0.1), "ok": np.bool_(True)},
+        {"m": [[1, 2], (3, 4)], "x": None, "s": "étoile", "t": 0.1, 3: "int key"},
+        {"nis": float("nan"), "cov": np.array([1.0, np.inf, 2.0]), "e": np.float64(-np.inf)},
+        [np.arange(3), {"deep": [np.float64(1e-300), np.uint8(255)]}],
+    ]
+    for value in cases:
+        slow = json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
+        assert dumps(value) == slow
+    assert json.loads(dumps(cases[2])) == {"nis": None, "cov": [1.0, None, 2.0], "e": None}
+    with pytest.raises(TypeError, match="cannot write object"):
+        dumps({"o": object()})

@@ -159,3 +159,32 @@ def test_replay_leaves_video_uncompressed_and_compresses_other_logs(rendered, tm
     assert _chunk_compressions(tmp_path / "c_out.mcap") == {"lz4"}
     replay(sim, tmp_path / "z.mcap", progress=False, compression="zstd")
     assert _chunk_compressions(tmp_path / "z.mcap") == {"zstd"}
+
+
+@pytest.mark.parametrize("mag_limit", [3.0, 4.5])
+def test_stars_in_view_are_counted_as_stars_in_view_counts_them(mag_limit):
+    """The summary's batch count of catalogue stars in view equals Solver.stars_in_view
+    frame by frame (random attitudes, so counts around the threshold of 3 occur)."""
+    from adfusion.pipeline import ReplaySummary, _InViewCounter
+    from starid import Camera, Catalog, Solver
+    from starid import rotations as rot
+
+    solver = Solver(Catalog.hipparcos(mag_limit=mag_limit),
+                    Camera.pinhole(512, 480, 12.0), cache=False)
+    q_body_cam = rot.normalize(np.array([0.9, 0.1, -0.2, 0.3]))
+    rng = np.random.default_rng(7)
+    truth = rot.normalize(rng.normal(size=(400, 4)))
+    counter = _InViewCounter(solver, q_body_cam)
+    ref = []
+    for k, q in enumerate(truth):
+        counter.add(q, k % 2 == 0)
+        q_cam = rot.multiply(rot.inverse(q_body_cam), q)
+        ref.append(len(solver.stars_in_view(q_cam)[0]))
+    ref = np.array(ref)
+    R = rot.to_matrix(rot.multiply(counter.q_cam_body, truth))
+    assert counter._counts(R).tolist() == ref.tolist()
+    s = ReplaySummary()
+    counter.count_into(s)
+    assert s.frames_with_3_stars == int((ref >= 3).sum())
+    assert s.identified_with_3_stars == int((ref[::2] >= 3).sum())
+    assert 0 < s.frames_with_3_stars < len(ref)

@@ -216,3 +216,13 @@ def test_adfusion_reexports_the_same_module():
     import adfusion.rotations
 
     assert adfusion.rotations.multiply is rot.multiply
+
+
+def test_multiply_one_pair_equals_the_batched_product_bit_for_bit():
+    rng = np.random.default_rng(11)
+    p, q = rng.normal(size=(500, 4)), rng.normal(size=(500, 4))
+    batch = rot.multiply(p, q)
+    assert np.array_equal(np.array([rot.multiply(a, b) for a, b in zip(p, q, strict=True)]), batch)
+    # and the Hamilton convention: R(p ⊗ q) = R(p) R(q)
+    assert np.allclose(rot.to_matrix(rot.multiply(p[0], q[0])),
+                       rot.to_matrix(p[0]) @ rot.to_matrix(q[0]))
