@@ -424,56 +424,70 @@ class Solver:
         first given the failures so far (:func:`starid.search_order.combination_order`),
         then every 4-star one by its faintest member. Verification against all
         other detections is what makes a 3-star pattern trustworthy."""
+        seen: set[tuple[int, ...]] = set()
+        yield from self._renken_patterns(n_det, seen)
+
+        # 3-star patterns first: among false objects they are more often clean; most
+        # probably clean first, given that every pattern so far held a false object
+        if self.n_min <= 3:
+            for pat in combination_order(n_det, list(seen)):
+                if self._fresh(pat, seen):
+                    yield pat, f"combination {list(pat)}"
+        for last in range(3, n_det):
+            for head in itertools.combinations(range(last), 3):
+                pat = (*head, last)
+                if self._fresh(pat, seen):
+                    yield pat, f"combination {list(pat)}"
+
+    def _renken_patterns(self, n_det: int, seen: set[tuple[int, ...]],
+                         ) -> Iterator[tuple[tuple[int, ...], str]]:
+        """The first part of :meth:`_patterns`: Renken's main pattern and Not-Modus
+        (adding each to ``seen``)."""
         n = min(self.n_max, n_det)
         base = tuple(range(n))
-        seen: set[tuple[int, ...]] = set()
 
-        def fresh(p: tuple[int, ...]) -> bool:
-            if p in seen or len(p) < max(self.n_min, 3):
-                return False
-            seen.add(p)
-            return True
-
-        if fresh(base):
+        if self._fresh(base, seen):
             yield base, f"n={n}"
         for k in (n - 1, n - 2):
             # drop the faintest stars first: false objects are more often faint
             for keep in sorted(itertools.combinations(base, k), key=lambda c: sorted(
                     set(base) - set(c), reverse=True), reverse=True):
-                if fresh(keep):
+                if self._fresh(keep, seen):
                     yield keep, f"not-modus {k}-of-{n} {list(keep)}"
         for extra in range(n, min(n_det, 2 * n)):  # the next n fainter detections
             for out in reversed(base):
                 pat = tuple(sorted((set(base) - {out}) | {extra}))
-                if fresh(pat):
+                if self._fresh(pat, seen):
                     yield pat, f"not-modus swap {extra} for {out}"
-        # 3-star patterns first: among false objects they are more often clean; most
-        # probably clean first, given that every pattern so far held a false object
-        if self.n_min <= 3:
-            for pat in combination_order(n_det, list(seen)):
-                if fresh(pat):
-                    yield pat, f"combination {list(pat)}"
-        for last in range(3, n_det):
-            for head in itertools.combinations(range(last), 3):
-                pat = (*head, last)
-                if fresh(pat):
-                    yield pat, f"combination {list(pat)}"
 
-    def _pattern_list(self, n_det: int) -> tuple[NDArray[np.int64], NDArray[np.int64],
-                                                 list[str]]:
-        """The first ``max_patterns`` + 1 patterns of :meth:`_patterns` for
-        :func:`kernels.search`: detections (P, 8), their counts (P,) and the paths. The
-        order is a function of the detection count alone (the search reaches a pattern
-        only after every earlier one failed), so it is computed once per count."""
-        if n_det not in self._pattern_lists:
-            pats = list(itertools.islice(self._patterns(n_det), self.max_patterns + 1))
+    def _fresh(self, p: tuple[int, ...], seen: set[tuple[int, ...]]) -> bool:
+        """Whether ``p`` is a pattern not yet tried, of at least ``n_min`` (and 3) stars;
+        notes it in ``seen``."""
+        if p in seen or len(p) < max(self.n_min, 3):
+            return False
+        seen.add(p)
+        return True
+
+    def _pattern_list(self, n_det: int, full: bool,
+                      ) -> tuple[NDArray[np.int64], NDArray[np.int64], list[str]]:
+        """Patterns of :meth:`_patterns` for :func:`kernels.search` — Renken's
+        (:meth:`_renken_patterns`) or, with ``full``, all up to the budget
+        (``max_patterns`` + 1) — as detections (P, 8), their counts (P,) and the paths.
+
+        The order is a function of the detection count alone (the search reaches a
+        pattern only after every earlier one failed), so each list is computed once per
+        count; the combinations' order (a few ms) only when a frame first gets there."""
+        key = (n_det, full)
+        if key not in self._pattern_lists:
+            it = self._patterns(n_det) if full else self._renken_patterns(n_det, set())
+            pats = list(itertools.islice(it, self.max_patterns + 1))
             arr = np.zeros((len(pats), 8), dtype=np.int64)
             for r, (p, _) in enumerate(pats):
                 arr[r, :len(p)] = p
-            self._pattern_lists[n_det] = (arr, np.array([len(p) for p, _ in pats],
-                                                        dtype=np.int64),
-                                          [path for _, path in pats])
-        return self._pattern_lists[n_det]
+            self._pattern_lists[key] = (arr, np.array([len(p) for p, _ in pats],
+                                                      dtype=np.int64),
+                                        [path for _, path in pats])
+        return self._pattern_lists[key]
 
     def _solve_at(self, xy: NDArray, cams: list[Camera]) -> tuple[Solution, int]:
         """Try patterns in order; each pattern at every focal-length guess (so the right
@@ -524,10 +538,11 @@ class Solver:
         yields (guess, sel, assignments, quick checks, path) of every trial with a
         candidate whose quick p_false passes, for :meth:`_verify`; ``run`` keeps the
         counts, the weak candidates and the budget notes."""
-        pats, plen, paths = self._pattern_list(len(xy))
+        full = False
+        pats, plen, paths = self._pattern_list(len(xy), full)
         n_cams = len(cams)
         state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
-        no_match = np.zeros((n_cams, len(pats) + 1), dtype=np.int64)
+        no_match = np.zeros((n_cams, self.max_patterns + 2), dtype=np.int64)
         n_no_match = np.zeros(n_cams, dtype=np.int64)
         pix = np.array([cam.pixel_scale_rad for cam in cams])
         radius = self._match_radius_px() * pix
@@ -548,7 +563,12 @@ class Solver:
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
             if status != kernels.STRONG:
-                return
+                if full or pos < len(pats):
+                    return
+                # Renken's patterns failed: on to the combinations (the same list, longer)
+                full = True
+                pats, plen, paths = self._pattern_list(len(xy), full)
+                continue
             yield ci, sel, rows, _quick_tuples(q), paths[pos]
             state[:2] = (pos, ci + 1) if ci + 1 < n_cams else (pos + 1, 0)
 
@@ -994,7 +1014,7 @@ class _Search:
             return sorted(self.weak, key=lambda w: w[0])[:k]
         p = np.concatenate([w[0] for w in self.weak_rows])
         rows = np.concatenate([w[1] for w in self.weak_rows])
-        paths = self.weak_rows[0][2]
+        paths = self.weak_rows[-1][2]  # the latest list: the longest, the others its prefixes
         out = []
         for o in np.argsort(p, kind="stable")[:k].tolist():
             pos, ci, trial, n = rows[o, :4].tolist()
