@@ -67,13 +67,25 @@ def _order(n_det: int, failed: tuple[tuple[int, ...], ...], m_brightest: int,
     m = min(m_brightest, n_det)
     if m < 3:
         return tuple(by_faintest)
+    # only failures among the m brightest say anything about them: every detection
+    # count from m up shares one computation (the solver's Not-Modus patterns reach
+    # index 11, so counts ≥ 12 differ only in the tail)
+    inside = tuple(p for p in failed if max(p) < m)
+    order = _most_probably_clean(m, inside, p_false_object)
+    seen = set(order)
+    return order + tuple(t for t in by_faintest if t not in seen)
+
+
+@lru_cache(maxsize=64)
+def _most_probably_clean(m: int, failed: tuple[tuple[int, ...], ...],
+                         p_false_object: float) -> tuple[tuple[int, ...], ...]:
+    """The greedy sequence over the triples of ``m`` detections (module docstring)."""
     triples = list(itertools.combinations(range(m), 3))
     labels = np.arange(1 << m)  # bit i set: detection i is false
     false_count = ((labels[:, None] >> np.arange(m)) & 1).sum(axis=1)
     weight = p_false_object ** false_count * (1.0 - p_false_object) ** (m - false_count)
     for p in failed:
-        if max(p) < m:
-            weight[(labels & _mask(p)) == 0] = 0.0  # that pattern would have been clean
+        weight[(labels & _mask(p)) == 0] = 0.0  # that pattern would have been clean
     masks = np.array([_mask(t) for t in triples])
     clean = (labels[:, None] & masks[None, :]) == 0  # (labellings, triples)
     score = weight @ clean
@@ -92,8 +104,7 @@ def _order(n_det: int, failed: tuple[tuple[int, ...], ...], m_brightest: int,
         gone = np.flatnonzero(clean[:, k] & (weight > 0))  # labellings this failure rules out
         score -= weight[gone] @ clean[gone]
         weight[gone] = 0.0
-    seen = set(order)
-    return tuple(order + [t for t in by_faintest if t not in seen])
+    return tuple(order)
 
 
 def _mask(idx: Sequence[int]) -> int:
