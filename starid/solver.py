@@ -338,6 +338,36 @@ class Solver:
         return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                         patterns_tried=tried)
 
+    def warm_up(self) -> bool:
+        """Pay the lost-in-space search's one-time costs now rather than in the first
+        frames: its compiled kernels (:mod:`starid.kernels`) load from numba's cache in
+        ~0.3 s — or, the first time after an install, compile in ~10 s — on their first
+        call in a process, and each detection count's pattern order is computed on first
+        use. Call it once before a timed or real-time loop. Returns whether a synthetic
+        frame (the catalogue seen at a few fixed attitudes) was solved.
+
+        >>> import starid
+        >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
+        ...                   starid.Camera.pinhole(1024, 768, 15.0))
+        >>> s.warm_up()
+        True
+        """
+        for dec in (0.5, -0.5, 1.2, -1.2, 0.0):
+            pxy, _, idx = self._project_idx(rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0),
+                                            self.camera)
+            if len(idx) >= 4:
+                break
+        else:
+            return False
+        solved = self.solve(pxy[:8]).ok  # the search
+        if self.method == "nstar":  # every detection count's pattern list (~0.1 s)
+            for n_det in range(3, self.max_detections + 1):
+                self._pattern_list(n_det, True)
+        b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
+        table = _PairWindows.of(b_all, self.tolerance_rad, 0.0)
+        self._quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)
+        return solved
+
     def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Pixel positions and catalogue ids of the catalogue stars inside the frame at an
         attitude (``q_cam_icrs``). Cheap frame after frame: the solver keeps the last
