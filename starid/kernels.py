@@ -17,6 +17,11 @@ patterns. Compiled on first use and cached on disk (``cache=True``): the first p
 after an install or an edit spends ~10–15 s compiling (once), later ones ~0.5 s loading.
 
 ``ix`` below is :func:`index_arrays` of a :class:`starid.index.PatternIndex`.
+
+Example:
+    >>> from starid.kernels import binomial_tail
+    >>> round(binomial_tail(3, 10, 0.01), 6)  # P(X ≥ 3), X ~ Binomial(10, 0.01): as scipy
+    0.000114
 """
 
 from __future__ import annotations
