@@ -282,6 +282,23 @@ def test_random_detections_are_never_accepted(solver, cam):
     assert accepted == 0
 
 
+def test_p_false_is_not_optimistic_on_frames_of_random_detections(solver, cam):
+    # every candidate of a random frame is wrong, so the fraction of frames whose best
+    # candidate reaches p_false ≤ x must stay near x or below; over 20 000 frames
+    # (benchmarks/p_false_calibration.py) 1.4e-2 at 1e-2, 0.95e-3 at 1e-3, 5e-5 at 1e-4
+    rng = np.random.default_rng(99)
+    best = []
+    for _ in range(3000):
+        xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (rng.integers(5, 9), 2))
+        sol = solver.solve(xy)
+        best.append(sol.p_false if sol.ok else min(
+            (c.p_false for c in sol.candidates), default=1.0))
+    best = np.array(best)
+    assert np.mean(best <= 1e-2) <= 3e-2
+    assert np.mean(best <= 1e-3) <= 4e-3
+    assert np.mean(best <= 1e-1) > 1e-2  # the test sees candidates at all
+
+
 @pytest.mark.parametrize(
     "xy, reason",
     [
