@@ -117,7 +117,9 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     test, in the same order (descending cosine, ties by index), so the same rows; only
     first pairs whose second star has some partner in window (1, 2) are extended (the
     rest extend to nothing; that mask is a superset, widened by a few ulps, since the
-    link test computes its cosine afresh)."""
+    link test computes its cosine afresh) — unless that window reaches past the index's
+    ``max_sep``, where the pair list holds no partners. The last level counts against
+    ``max_partials`` too."""
     v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
     nbr_idx, nbr_cos, nbr_bin, max_sep = ix[5], ix[6], ix[7], ix[8]
     n = cmin.shape[0]
@@ -126,6 +128,8 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     n_first = 2 * (hi - lo)
     empty = np.zeros((0, n), dtype=np.int64)
     if n == 2:
+        if n_first > max_partials:
+            return empty, n_first, 2
         cur = np.empty((n_first, 2), dtype=np.int64)
         for r in range(lo, hi):  # every i < j pair, then the same pairs swapped
             cur[r - lo, 0], cur[r - lo, 1] = pair_i[r], pair_j[r]
@@ -146,7 +150,12 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
         nxt_e[e], other[e], work[x] = work[x], y, e
         nxt_e[e + 1], other[e + 1], work[y] = work[y], x, e + 1
         e += 2
+    # the pair list holds pairs closer than max_sep only: when window (1, 2) reaches
+    # beyond, a partner there would be missed, so every first pair is extended
+    masked = math.acos(min(max(cmin[1, 2], -1.0), 1.0)) < max_sep - 1e-9
     lo3, hi3 = _pair_window(pair_cos, cmin[1, 2] - 1e-15, cmax[1, 2] + 1e-15)
+    if not masked:
+        lo3 = hi3
     for r in range(lo3, hi3):
         work[n_cat + pair_i[r]] = work[n_cat + pair_j[r]] = 1
     cur = np.empty((16, n), dtype=np.int64)
@@ -154,7 +163,7 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     for swap in range(2):  # every i < j pair, then the same pairs swapped
         for r in range(lo, hi):
             a, b = (pair_j[r], pair_i[r]) if swap else (pair_i[r], pair_j[r])
-            if work[n_cat + b] < 0:
+            if masked and work[n_cat + b] < 0:
                 continue
             e = work[a]
             while e >= 0:
@@ -206,6 +215,8 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
                     nxt[kn, m] = s
                     kn += 1
         cur, k = nxt, kn
+    if k > max_partials:  # the last level too: bounded memory for the quick checks
+        return empty, k, n
     return _grown(cur, k)[:k], 0, 0
 
 

@@ -213,6 +213,8 @@ def extend_indexed(
         assign = np.concatenate([assign[parent], cand[:, None]], axis=1)
         if m == 2 and pattern.chirality != 0 and len(assign):
             assign = assign[_chirality_ok(v, assign, pattern.chirality)]
+    if len(assign) > max_partials:  # the last level too: bounded memory for the checks
+        raise WorkBudgetExceeded(f"{len(assign)} partial assignments at level {n}")
     return assign
 
 

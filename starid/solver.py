@@ -265,6 +265,12 @@ class Solver:
                              f"camera, got {fov_error_deg}")
         if not 0 < p_false_max < 1:
             raise ValueError("p_false_max must be in (0, 1)")
+        if not 3 <= max_detections <= 64:
+            # the search marks a pattern's detections in a 64-bit mask
+            raise ValueError(f"max_detections must be in [3, 64], got {max_detections}")
+        if max_patterns < 1 or work_budget < 1:
+            raise ValueError(f"max_patterns and work_budget must be ≥ 1, got {max_patterns}"
+                             f" and {work_budget}")
         self.catalog = catalog
         self.camera = camera
         self.vectors = np.asarray(catalog.vectors, dtype=np.float64)
@@ -284,7 +290,8 @@ class Solver:
         self.max_detections = int(max_detections)
         self.max_patterns = int(max_patterns)
         self.work_budget = int(work_budget)
-        widest = camera.scaled(self._focal_scales()[0]) if fov_error_deg else camera
+        # the index must reach across the widest field any focal guess gives
+        widest = camera.scaled(min(self._focal_scales())) if fov_error_deg else camera
         self.max_sep_rad = float(np.radians(widest.diagonal_fov_deg) + 2 * self.tolerance_rad)
         tag = _catalog_tag(self.vectors) if cache else None
         t0 = time.perf_counter()
@@ -292,7 +299,7 @@ class Solver:
         self.index_build_s = time.perf_counter() - t0
         self._tree = cKDTree(self.vectors)
         self._ix = kernels.index_arrays(self.index)
-        self._pattern_lists: dict[int, tuple] = {}
+        self._pattern_lists: dict[tuple[int, ...], tuple] = {}
         # the search runs compiled, except with the matchers kept in numpy
         self._compiled = not (faithful or self.n_bands > 1)
         self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
@@ -507,7 +514,7 @@ class Solver:
         The order is a function of the detection count alone (the search reaches a
         pattern only after every earlier one failed), so each list is computed once per
         count; the combinations' order (a few ms) only when a frame first gets there."""
-        key = (n_det, full)
+        key = (n_det, full, self.max_patterns, self.n_max, self.n_min)
         if key not in self._pattern_lists:
             it = self._patterns(n_det) if full else self._renken_patterns(n_det, set())
             pats = list(itertools.islice(it, self.max_patterns + 1))

@@ -391,6 +391,61 @@ def test_compiled_match_gives_the_rows_of_match_indexed(small_sky, seed, n, tol_
     assert (work == -1).all()
 
 
+def test_the_last_level_counts_against_the_work_budget(small_sky):
+    """A pattern whose complete assignments outnumber the budget trips it (memory for the
+    quick checks stays bounded), in both matchers, at the last level."""
+    from starid import kernels
+
+    v, idx = small_sky
+    ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
+    # a tight first pair and wide windows to the third star: few partials, many rows
+    tight = Pattern.from_vectors(v[np.argsort(-(v @ v[0]))[:3]], np.radians(0.05))
+    wide = Pattern.from_vectors(v[np.argsort(-(v @ v[0]))[:3]], np.radians(8.0))
+    cmin, cmax = wide.cos_min.copy(), wide.cos_max.copy()
+    cmin[0, 1] = cmin[1, 0] = tight.cos_min[0, 1]
+    cmax[0, 1] = cmax[1, 0] = tight.cos_max[0, 1]
+    pat = Pattern(wide.angles, cmin, cmax, 0, wide.delta_max_rad)
+    rows = match_indexed(idx, pat, max_partials=10**7)
+    assert len(rows) > len(first_pair_indexed(idx, pat))
+    with pytest.raises(WorkBudgetExceeded, match="at level 3"):
+        match_indexed(idx, pat, max_partials=len(rows) - 1)
+    assert kernels.match(ix, pat.cos_min, pat.cos_max, pat.chirality, len(rows) - 1,
+                         work)[1:] == (len(rows), 3)
+    assert kernels.match(ix, pat.cos_min, pat.cos_max, pat.chirality, len(rows),
+                         work)[1] == 0
+
+
+def test_compiled_match_past_the_index_reach(small_sky):
+    """A triangle whose (1, 2) side is longer than the index's reach (its pair list holds
+    no such pair; match_indexed tests that link directly): the kernel gives the same rows,
+    the triangle among them."""
+    from starid import kernels
+
+    v, idx = small_sky
+    ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
+    reach = idx.max_sep_rad
+    rng = np.random.default_rng(5)
+    tested = 0
+    for a in rng.permutation(len(v))[:200].tolist():
+        ang = np.arccos(np.clip(v @ v[a], -1.0, 1.0))
+        near = np.flatnonzero((ang > 0.01) & (ang < np.radians(8)))
+        far = np.flatnonzero((ang > reach - np.radians(6)) & (ang < reach - np.radians(0.5)))
+        if not len(near) or not len(far):
+            continue
+        b = int(near[0])
+        beyond = far[np.arccos(np.clip(v[far] @ v[b], -1.0, 1.0)) > reach + 1e-3]
+        if not len(beyond):
+            continue
+        pat = Pattern.from_vectors(v[[a, b, int(beyond[0])]], np.radians(0.05))
+        rows, over, _ = kernels.match(ix, pat.cos_min, pat.cos_max, pat.chirality, 10**7,
+                                      work)
+        np.testing.assert_array_equal(rows, match_indexed(idx, pat, max_partials=10**7))
+        assert over == 0 and (a, b, int(beyond[0])) in set_of(rows)
+        tested += 1
+    assert tested >= 10
+    assert (work == -1).all()
+
+
 def test_compiled_match_mirror_and_work_budget(small_sky):
     """The mirror image of a triangle is not matched, the true one is; over the work
     budget the kernel reports what WorkBudgetExceeded says, at the same level."""

@@ -314,6 +314,14 @@ def test_bad_input_gives_not_ok_with_reason(solver, xy, reason):
     assert not sol.ok and reason in sol.reason
 
 
+@pytest.mark.parametrize("kw", [{"max_detections": 65}, {"max_detections": -1},
+                                {"max_patterns": 0}, {"work_budget": 0}])
+def test_solver_settings_out_of_range_are_refused(cat, cam, kw):
+    # pattern members are marked in 64-bit masks: more detections would alias silently
+    with pytest.raises(ValueError, match=r"max_detections|max_patterns"):
+        starid.Solver(cat, cam, **kw)
+
+
 def test_bad_input_shapes_raise(solver):
     with pytest.raises(ValueError, match=r"\(N, 2\)"):
         solver.solve(np.zeros((5, 4)))
