@@ -141,8 +141,7 @@ def _varint(n: int) -> bytes:
 
 def _field(number: int, payload: bytes) -> bytes:
     """A length-delimited field (sub-message or string) in protobuf wire format."""
-    n = len(payload)
-    return _VARINTS[number << 3 | 2] + (_VARINTS[n] if n < 2048 else _varint_of(n)) + payload
+    return _varint(number << 3 | 2) + _varint(len(payload)) + payload
 
 
 def _stamp_bytes(t_ns: int) -> bytes:
