@@ -216,13 +216,7 @@ def process_noise(dt: float, arw_rad_sqrt_s: float, rrw_rad_s_sqrt_s: float) -> 
 # --- float quaternion helpers (hot path; numpy costs ~1 µs per call on 4-vectors) --------
 
 
-def _qmul(p: tuple[float, ...], q: tuple[float, ...]) -> tuple[float, float, float, float]:
-    pw, px, py, pz = p
-    qw, qx, qy, qz = q
-    return (pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
+_qmul = rot.hamilton  # p ⊗ q on float tuples
 
 
 def _qexp(tx: float, ty: float, tz: float) -> tuple[float, float, float, float]:
