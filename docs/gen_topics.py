@@ -106,11 +106,8 @@ NOTES: dict[str, dict[str, Any]] = {
 
 
 def _module(name: str):
-    """``adfusion.logs.<name>``; before the one-import-root layout, ``logs.<name>``."""
-    try:
-        return importlib.import_module(f"adfusion.logs.{name}")
-    except ImportError:
-        return importlib.import_module(f"logs.{name}")
+    """``adfusion.logs.<name>`` (ImportError when there is none)."""
+    return importlib.import_module(f"adfusion.logs.{name}")
 
 
 def code_topics() -> dict[str, str]:
