@@ -6,68 +6,15 @@ estimate as a starting point, the gyro and magnetometer samples), and :func:`smo
 one factor graph over the whole history afterwards and solves it — in one batch
 (Levenberg–Marquardt) or frame by frame (iSAM2) — with marginal covariances out.
 
-Design (decisions, and the measurements behind them):
-
-* **States.** A ``Rot3`` per camera frame, GTSAM's ``nRb`` = ``R_icrs_body`` (so
-  ``q_body_icrs`` is its inverse). GTSAM perturbs on the right, ``R = R̂·Exp(δ)``, δ in the
-  body frame: its marginal covariance is the body-frame attitude-error covariance of DESIGN.md
-  as it stands (DESIGN's δθ is −δ; a covariance does not see the sign).
-* **Gyro** (between consecutive frames): ``PreintegratedAhrsMeasurements`` → ``AHRSFactor``
-  with a bias key per frame, a ``BetweenFactorVector`` bias random walk (variance
-  ``rrw²·Δt``) and a weak prior on the first bias. Gyro samples are point samples of the
-  rate, so the rate is interpolated linearly between them and integrated piecewise
-  (midpoint rule), split exactly at frame times; ``arw²`` is the continuous noise density.
-* **Stars.** Each identified star is an ``AttitudeFactorRot3`` (``R_icrs_body · b = r``, a
-  2-dof tangent-plane error), not a whole-frame fix: one wrong match then costs one bounded
-  residual instead of bending the fix. ``star_model="fix"`` takes the solver's fix as a
-  ``PriorFactorRot3`` with its covariance instead. **Star noise is anisotropic**: on the
-  OEDIPUS-like rendered log the centroid error across the star's image motion is ~3e-4 rad
-  per axis at every speed, while along it it grows with the streak length (RMS 3e-4 rad at
-  0–0.2 rad/s of image motion, 9e-4 at 0.4–0.6, 1.5e-3 at 0.8–1.2; zero-mean; frame-to-frame
-  correlation of a star's error ≤ 0.02). So each star gets a 2×2 covariance
-  ``σ0²·I + (k·s)²·v̂v̂ᵀ`` with ``s = |ω × b|`` its image speed (rad/s) and ``v̂`` its motion
-  direction. ``σ0`` and ``k`` (seconds) are **calibrated from the log itself** (no truth):
-  per-frame attitude fits weighted by the model give residuals along and across the motion,
-  corrected for their leverage, trimmed at 4σ and fitted by least squares, three rounds
-  (:func:`calibrate_star_noise`) — unless given. On the rendered log this gives
-  σ0 = 2.7e-4 rad and k = 1.75e-3 s (along-motion σ 9e-4 rad at 0.5 rad/s, as the truth
-  says). A filter cannot do this before it has seen the log; the smoother can.
-* **Robust noise.** Star and magnetometer factors are ``Robust(Cauchy(k=3))`` by default.
-  GTSAM applies the kernel to the whitened norm of the 2-dof error (99th percentile 3.03 for
-  Gaussian data), so a wrong match (tens to thousands of σ off) is down-weighted, not obeyed.
-  Measured on 20 s OEDIPUS-like logs (RMS error): rendered frames, whose intensified
-  centroids are heavy-tailed (3.7 % of stars beyond 3σ against 1.1 % for a Gaussian):
-  no kernel 0.0142°, Huber k=3 0.0136°, Huber k=2 0.0122°, Cauchy k=5 0.0127°, Cauchy k=3
-  0.0114°, Cauchy k=2 0.0104° (but NEES 2.4: over-cautious); centroid-only frames (Gaussian
-  noise) 0.0045–0.0046° for all of them. With one wrong match in every 50 frames: no kernel
-  0.022° (LEO: 0.034°, max 0.40°), Huber 0.0139°, Cauchy 0.0117° (LEO 0.00061°, as without
-  the wrong matches). Cauchy is non-convex; the filter's estimates are a good enough start.
-* **Magnetometer.** An ``AttitudeFactorRot3`` on the field direction at the nearest frame,
-  the body vector carried over the (≤ half a frame) time offset with the rate estimate;
-  σ as the estimator's (1° by default: field-model and iron residuals dominate).
-* **Gyro-less (video-only) logs.** Each frame also gets a body-rate state ``ω`` (Vector3),
-  and consecutive frames a white-noise-on-acceleration prior (the rate a random walk of
-  density ``q = rate_walk²``), written on the local coordinates ``θ(t) = Log(R_iᵀ R(t))``
-  whose derivative is ``J_r⁻¹(θ)·ω``: ``e = [ξ − Δt·ω_i ; J_r⁻¹(ξ)·ω_j − ω_i]``,
-  ``ξ = Log(R_iᵀ R_j)``, covariance ``q·[[Δt³/3, Δt²/2], [Δt²/2, Δt]] ⊗ I₃`` — a
-  ``CustomFactor`` with analytic Jacobians (the derivative of ``J_r⁻¹(ξ)ω_j`` is taken to
-  first order, −½[ω_j]×, which only slows convergence, never moves the optimum). The
-  density is a tuning choice (``rate_walk_rad_s_sqrt_s``); on the rendered OEDIPUS-like log
-  (spin 3.1 rad/s, coning: the body rate changes by ~0.05 rad/s²) 0.0003 → RMS 0.021° (the
-  model too stiff: NEES 108), 0.001 → 0.011° (NEES 4.8), **0.003 → 0.015° (NEES 3.2)**,
-  0.01 → 0.022°, 0.03 → 0.029°, 0.1 → 0.036° (Huber kernel); the rate filter has 0.051°.
-* **Modes.** ``mode="batch"``: Levenberg–Marquardt over the whole graph (video-only:
-  Gauss–Newton with step halving driven from Python, :func:`_gauss_newton` says why), then
-  ``Marginals``. ``mode="isam2"``: one ``ISAM2.update`` per frame (each frame's factors as
-  they arrive; the per-update times are returned), then the full smoothed history and its
-  marginals from the Bayes tree; its relinearisation threshold follows the star noise
-  (:data:`ISAM2_RELINEARIZE_MAX`), so it ends within a few per cent of the batch answer.
-* **Never silently wrong.** A log without a frame of ≥ 2 identified stars, a graph that does
-  not converge, or an attitude the data cannot determine (e.g. every frame seeing one star)
-  raises :class:`SmootherError` saying why. Frames cut off from all star data (no stars, and
-  a gyro gap on both sides) get no state and are listed in ``SmoothResult.problems``, as
-  are gyro gaps and frames without stars (those keep a state with ``n_stars = 0``, resting on
-  the motion model; their covariance says how little is known there).
+The graph: a ``Rot3`` per frame (GTSAM's ``nRb`` = ``R_icrs_body``); ``AHRSFactor`` gyro
+preintegration with a bias per frame; an ``AttitudeFactorRot3`` per identified star, with an
+anisotropic noise (worse along the star's image motion) calibrated from the log itself
+(:func:`calibrate_star_noise`); the magnetometer as a direction factor; Cauchy robust kernels
+on star and field factors, so a wrong match is down-weighted rather than obeyed; for
+video-only logs a body-rate state per frame and a white-noise-on-acceleration prior. It
+raises :class:`SmootherError` rather than return an attitude the data do not determine.
+The design, the measurements behind each choice and the tuning tables are in
+docs/concepts/smoother.md.
 
 Example (synthetic, no camera: stars seen from a body turning at 0.2 rad/s, gyro at 100 Hz):
     >>> import numpy as np
@@ -153,7 +100,7 @@ class SmootherInput:
         q_body_cam: camera mounting (camera → body), to turn camera vectors into body ones.
         arw_rad_sqrt_s, rrw_rad_s_sqrt_s: gyro angle and rate random walk.
         sigma_mag_rad: 1σ direction error of a magnetometer sample.
-        video_only: no gyro — the smoother estimates the body rate (module docstring).
+        video_only: no gyro — the smoother estimates the body rate (docs/concepts/smoother.md).
 
     Example:
         >>> inp = SmootherInput(video_only=True)
@@ -476,7 +423,8 @@ def _robust(base, kind: str, k: float):
 
 
 def _wnoa_factor(keys: list[int], dt: float, q: float):
-    """White-noise-on-acceleration prior between (R_i, ω_i) and (R_j, ω_j): module docstring."""
+    """White-noise-on-acceleration prior between (R_i, ω_i) and (R_j, ω_j) (the error and its
+    covariance: docs/concepts/smoother.md, "Video-only logs")."""
     import gtsam
 
     i3 = np.eye(3)
@@ -530,7 +478,9 @@ def smooth(
     max_iterations: int = 100,
     covariances: bool = True,
 ) -> SmoothResult:
-    """Smooth a recorded log: one state per frame, all measurements at once (module docstring).
+    """Smooth a recorded log: one state per frame, all measurements at once.
+
+    The graph and its tuning: docs/concepts/smoother.md.
 
     Args:
         inp: the recording.
