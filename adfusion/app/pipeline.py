@@ -31,6 +31,7 @@ import numpy as np
 from adfusion.app.detect_worker import keep_freed_memory
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.logs import LogWriter, McapLogReader
+from adfusion.logs.jsonio import to_jsonable
 from adfusion.starid import rotations as rot
 from adfusion.starid.camera import Camera
 from adfusion.starid.catalog import Catalog
@@ -50,7 +51,7 @@ def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
         bar = tqdm(total=len(scenario.t_frame), unit="frame", desc="simulate",
                    mininterval=0.5)
     with LogWriter(out_path) as log:
-        log.add_metadata("config", _jsonable(scenario.config))
+        log.add_metadata("config", to_jsonable(scenario.config))
         log.add_camera_model(scenario.camera.to_dict())
         cam = scenario.camera
         log.write_calibration(0.0, cam.width, cam.height, cam.K, cam.D, "camera")
@@ -505,15 +506,3 @@ def _progress(reader):
     except ImportError:  # pragma: no cover
         return reader
     return tqdm(reader, unit="msg", mininterval=0.5, desc="replay")
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
