@@ -2,12 +2,12 @@
 
 A MkDocs hook (``hooks:`` in ``mkdocs.yml``): at build time it replaces the
 ``<!-- topics:table -->`` and ``<!-- topics:fields -->`` markers of that page with tables
-built from :data:`adfusion.logs.schemas.JSON_SCHEMAS` (the JSON topics, their schema names,
-fields and descriptions) and the topic constants of :mod:`adfusion.logs` (the Foxglove
-topics). What the code does not say (the Foxglove messages' frames and the fields a replay
-adds beyond a schema's) is in :data:`NOTES` below. The build fails when a topic of the code
-has no entry here, or an entry names a topic the code does not have, so the page cannot
-drift from the code.
+built from the code: ``adfusion.logs.topics.table()`` where the code has it, and
+:data:`adfusion.logs.schemas.JSON_SCHEMAS` for the fields. Without a topics table, the
+Foxglove topics come from the ``*_TOPIC`` constants of :mod:`adfusion.logs`, and what the
+code does not say (their frames, the fields a replay adds beyond a schema's) from
+:data:`NOTES` below; the build then fails when a topic of the code has no entry there, so
+the page cannot drift from the code.
 
 Run it as a script to print the tables::
 
@@ -156,8 +156,27 @@ def _type(prop: dict[str, Any]) -> str:
     return " or ".join(types)  # not "|": the cell is inside a markdown table
 
 
+def _cell(text: Any) -> str:
+    return str(text).replace("|", "or").replace("\n", " ")
+
+
+def _code_table() -> list[dict[str, Any]] | None:
+    """``adfusion.logs.topics.table()`` (topic, schema, fields, units, frame) when the code
+    has one; then it is the single source and :data:`NOTES` is not used."""
+    try:
+        return list(_module("topics").table())
+    except (ImportError, AttributeError):
+        return None
+
+
 def topics_table() -> str:
     """One row per topic: schema, encoding, frame, writer, content."""
+    rows = _code_table()
+    if rows is not None:
+        out = ["| topic | schema | fields | units | frame |", "|---|---|---|---|---|"]
+        out += [f"| `{r['topic']}` | `{r['schema']}` | {_cell(r['fields'])} | "
+                f"{_cell(r['units'])} | {_cell(r['frame'])} |" for r in rows]
+        return "\n".join(out)
     check()
     schemas = _module("schemas").JSON_SCHEMAS
     rows = ["| topic | schema | encoding | frame | written by | content |",
@@ -176,8 +195,19 @@ def topics_table() -> str:
 
 def fields_table() -> str:
     """One row per field of every JSON topic: type, required, description (unit, frame)."""
-    check()
     schemas = _module("schemas").JSON_SCHEMAS
+    if _code_table() is not None:
+        rows = ["| topic | field | type | status | description (unit, frame) |",
+                "|---|---|---|---|---|"]
+        for topic in sorted(schemas):
+            schema = schemas[topic][1]
+            required = set(schema.get("required", ()))
+            for name, prop in schema["properties"].items():
+                status = "required" if name in required else "optional"
+                rows.append(f"| `{topic}` | `{name}` | {_type(prop)} | {status} | "
+                            f"{_cell(prop.get('description', ''))} |")
+        return "\n".join(rows)
+    check()
     rows = ["| topic | field | type | in the schema | description (unit, frame) |",
             "|---|---|---|---|---|"]
     for topic in sorted(NOTES):
