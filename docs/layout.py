@@ -6,7 +6,7 @@ The repository's ``starid/``, ``sensors/`` and ``logs/`` install as ``adfusion.s
 with griffe, which walks folders and does not follow that mapping, so this hook builds
 ``build/docs-layout/adfusion/`` (links to the folders of ``adfusion/`` and to the mapped
 folders, copies of its few top-level files) and ``mkdocs.yml`` points griffe there
-(``paths``). It is rebuilt on every build.
+(``paths``). It is built once per ``mkdocs`` run.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def build_tree(tree: Path = TREE, root: Path = ROOT) -> Path:
     return tree
 
 
-def on_config(config: Any, **kwargs: Any) -> Any:
-    """MkDocs hook: build the tree before any page is rendered."""
+def on_startup(**kwargs: Any) -> None:
+    """MkDocs hook, run once per ``mkdocs build`` or ``serve`` before any plugin's
+    ``on_config``: mkdocstrings expands its ``paths`` there and drops a missing one."""
     build_tree()
-    return config
