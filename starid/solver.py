@@ -36,7 +36,6 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import math
 import time
@@ -50,7 +49,7 @@ from adfusion.starid import rotations as rot
 from adfusion.starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
 from adfusion.starid.calibrate import fit_camera
 from adfusion.starid.camera import Camera
-from adfusion.starid.index import PatternIndex
+from adfusion.starid.index import PatternIndex, catalog_cache_tag
 from adfusion.starid.nstar import (
     Pattern,
     WorkBudgetExceeded,
@@ -292,7 +291,8 @@ class Solver:
         # the index must reach across the widest field any focal guess gives
         widest = camera.scaled(min(self._focal_scales())) if fov_error_deg else camera
         self.max_sep_rad = float(np.radians(widest.diagonal_fov_deg) + 2 * self.tolerance_rad)
-        tag = _catalog_tag(self.vectors) if cache else None
+        # keyed by the star set, not the epoch: a later epoch reuses the index (index.py)
+        tag = catalog_cache_tag(catalog) if cache else None
         t0 = time.perf_counter()
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
@@ -1138,10 +1138,6 @@ def _distinct(cands: list[Candidate], tol_rad: float) -> list[Candidate]:
         if all(rot.angle_between(c.q_cam_icrs, o.q_cam_icrs) > tol_rad for o in out):
             out.append(c)
     return out
-
-
-def _catalog_tag(vectors: NDArray) -> str:
-    return hashlib.sha1(np.ascontiguousarray(vectors).tobytes()).hexdigest()
 
 
 def _replace(sol: Solution, **kw) -> Solution:
