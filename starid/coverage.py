@@ -31,7 +31,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["DEFAULT_STARS_PER_FOV", "coverage_indices", "sky_cells", "uniform_coverage"]
+__all__ = ["DEFAULT_STARS_PER_FOV", "catalog_for_camera", "coverage_indices", "sky_cells",
+           "uniform_coverage"]
 
 #: Stars kept per field of view: as many as the detections the solver considers (30);
 #: benchmarks/bench_deep_index.py measures identification against it (0 wrong).
@@ -114,3 +115,25 @@ def uniform_coverage(catalog, camera, stars_per_fov: int = DEFAULT_STARS_PER_FOV
     cells_per_field = fx * fy / side**2
     per_cell = max(1, math.ceil(stars_per_fov / cells_per_field))
     return catalog.select(coverage_indices(catalog.vectors, catalog.mag, side, per_cell))
+
+
+def catalog_for_camera(catalog, camera, stars_per_fov: int = DEFAULT_STARS_PER_FOV):
+    """``catalog`` thinned by :func:`uniform_coverage` when it is deep for this field —
+    more than ``stars_per_fov`` stars in an average field — else unchanged.
+
+    The command line's default: a shallow catalogue keeps every star (the behaviour and
+    figures of a V 6.5 catalogue on an 11° camera do not change), a deep one is bounded.
+
+    >>> from adfusion.starid import Camera
+    >>> from adfusion.starid.catalog import Catalog
+    >>> cat = Catalog.hipparcos(mag_limit=6.5)
+    >>> len(catalog_for_camera(cat, Camera.pinhole(1024, 768, 11.4))) == len(cat)
+    True
+    >>> len(catalog_for_camera(cat, Camera.pinhole(1024, 768, 40.0))) < len(cat)
+    True
+    """
+    fx, fy = math.radians(camera.fov_x_deg), math.radians(camera.fov_y_deg)
+    per_field = len(catalog) * fx * fy / (4 * math.pi)
+    if per_field <= stars_per_fov:
+        return catalog
+    return uniform_coverage(catalog, camera, stars_per_fov)

@@ -34,22 +34,63 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true", help="print JSON instead of a table")
     d.set_defaults(func=cmd_detect)
 
-    s = sub.add_parser("solve", help="identify the stars of an image: attitude, lost in space")
-    s.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
+    s = sub.add_parser("solve", help="identify the stars of images: attitude, lost in space",
+                       description="Identify the stars of one image, many, or every image "
+                       "of a folder (loaded once, solved in turn with a progress bar).")
+    s.add_argument("images", nargs="*", metavar="IMAGE",
+                   help="image files (TIFF, PNG, JPEG) or folders of them")
     s.add_argument("--example", action="store_true",
                    help="render and solve the built-in synthetic example frame")
     s.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
     s.add_argument("--fov-error", type=float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
+    s.add_argument("--camera", metavar="YAML",
+                   help="OpenCV camera file (e.g. from `adfusion calibrate`) instead of --fov")
     s.add_argument("--mag-limit", type=float, default=6.5,
                    help="catalogue limit, estimated Johnson V (default 6.5)")
+    s.add_argument("--stars-per-fov", type=int, default=None,
+                   help="deep catalogues: keep the brightest N stars per field-sized patch "
+                        "of sky (default: 30, applied when the catalogue holds more)")
     s.add_argument("--epoch", type=float, default=None,
                    help="observation epoch, Julian year (default: now)")
     s.add_argument("--method", choices=["nstar", "triad"], default="nstar")
     s.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
-    s.add_argument("--overlay", metavar="PNG", help="write an overlay image for checking")
+    s.add_argument("--overlay", metavar="PNG", help="write an overlay image (one image only)")
+    s.add_argument("-o", "--out-dir", metavar="DIR",
+                   help="write <image>.json per image here (and .wcs / .corr if asked)")
+    s.add_argument("--wcs", action="store_true",
+                   help="write <image>.wcs: FITS TAN-SIP header (into --out-dir, default .)")
+    s.add_argument("--corr", action="store_true",
+                   help="write <image>.corr: FITS table of the matched stars")
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=cmd_solve)
+
+    ca = sub.add_parser("cache", help="the on-disk cache of catalogues and pattern indexes")
+    ca.add_argument("action", choices=["info", "clear"])
+    ca.add_argument("--kind", help="clear only entries of this kind (e.g. pattern-index)")
+    ca.add_argument("--json", action="store_true", help="print JSON instead of text")
+    ca.set_defaults(func=cmd_cache)
+
+    cb = sub.add_parser("calibrate", help="fit a camera (focal length, principal point, "
+                        "distortion) jointly over many frames → OpenCV camera YAML")
+    cb.add_argument("images", nargs="+", metavar="FRAME",
+                    help="image files or folders, one camera, same size")
+    cb.add_argument("-o", "--output", required=True, metavar="YAML",
+                    help="camera file to write (accepted by --camera)")
+    cb.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
+    cb.add_argument("--fov-error", type=float, default=None,
+                    help="± uncertainty of --fov, degrees (default 5 %% of --fov)")
+    cb.add_argument("--camera", metavar="YAML", help="starting camera instead of --fov")
+    cb.add_argument("--mag-limit", type=float, default=7.5,
+                    help="catalogue limit for the fit's stars (default 7.5)")
+    cb.add_argument("--epoch", type=float, default=None,
+                    help="observation epoch, Julian year (default: now)")
+    cb.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
+    cb.add_argument("--distortion", choices=["none", "k1", "k1k2", "k1k2p", "k1k2k3p"],
+                    default="k1k2p", help="OpenCV terms to fit (default k1k2p: k1, k2, p1, "
+                    "p2)")
+    cb.add_argument("--json", action="store_true", help="print JSON instead of text")
+    cb.set_defaults(func=cmd_calibrate)
 
     sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo)")
     sm.add_argument("scenario", choices=["oedipus", "leo"])
@@ -170,72 +211,239 @@ def cmd_detect(args: argparse.Namespace) -> int:
     return 0
 
 
+_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm"}
+
+
+def _image_paths(items: Sequence[str]) -> list:
+    """The image files named, folders expanded to their images (sorted)."""
+    from pathlib import Path
+
+    out = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
+            if not found:
+                raise ValueError(f"no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) in {p}")
+            out.extend(found)
+        elif not p.exists():
+            raise FileNotFoundError(f"image file not found: {str(p)!r}")
+        else:
+            out.append(p)
+    return out
+
+
+class _Solvers:
+    """One catalogue, and one solver per image size, for every image of a run."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        from adfusion import starid
+
+        self.args = args
+        self.epoch = args.epoch if args.epoch is not None else _julian_year_now()
+        self.catalog = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=self.epoch)
+        self.camera_file = None
+        if getattr(args, "camera", None):
+            from adfusion.starid.camera_file import read_camera_yaml
+
+            self.camera_file = read_camera_yaml(args.camera)
+        elif args.fov is None:
+            raise ValueError("--fov (horizontal field of view estimate, degrees) or --camera "
+                             "(a camera YAML) is required")
+        self._by_size: dict = {}
+
+    def camera_for(self, width: int, height: int):
+        from adfusion import starid
+
+        if self.camera_file is not None:
+            c = self.camera_file
+            if (c.width, c.height) != (width, height):
+                raise ValueError(f"the camera file is for {c.width}×{c.height} images, this "
+                                 f"one is {width}×{height}")
+            return c
+        return starid.Camera.pinhole(width, height, self.args.fov)
+
+    def solver_for(self, camera):
+        from adfusion import starid
+        from adfusion.starid.coverage import DEFAULT_STARS_PER_FOV, catalog_for_camera
+
+        key = camera.key()
+        if key not in self._by_size:
+            a = self.args
+            spf = a.stars_per_fov if a.stars_per_fov is not None else DEFAULT_STARS_PER_FOV
+            cat = catalog_for_camera(self.catalog, camera, spf)
+            solver = starid.Solver(cat, camera, fov_error_deg=a.fov_error, method=a.method)
+            if a.method == "nstar":
+                solver.warm_up()  # the reported time is the solve's, not the kernels' loading
+            self._by_size[key] = solver
+        return self._by_size[key]
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
     from adfusion import starid
     from adfusion.starid.detect import read_image
 
-    if args.example == bool(args.image):
-        raise ValueError("give an IMAGE or --example (one of them)")
-    epoch = args.epoch if args.epoch is not None else _julian_year_now()
+    if args.example == bool(args.images):
+        raise ValueError("give IMAGE(s) or --example (one of them)")
+    paths = [] if args.example else _image_paths(args.images)
+    if args.overlay and len(paths) > 1:
+        raise ValueError("--overlay takes one image (use --out-dir for a batch)")
+    out_dir = None
+    if args.out_dir or args.wcs or args.corr:
+        from pathlib import Path
+
+        out_dir = Path(args.out_dir or ".")
+        out_dir.mkdir(parents=True, exist_ok=True)
     truth_q = None
     if args.example:
         from adfusion.app import examples
 
         ex = examples.example_frame()
-        image, camera, truth_q = ex.image, ex.camera, ex.q_cam_icrs
         print(f"example: {ex.description}", file=sys.stderr)
+        args.camera, args.fov = None, ex.camera.fov_x_deg
+        frames = [("example", lambda: ex.image)]
+        truth_q = ex.q_cam_icrs
     else:
-        if args.fov is None:
-            raise ValueError("--fov (horizontal field of view estimate, degrees) is required")
-        image = read_image(args.image)
-        h, w = image.shape[:2]
-        camera = starid.Camera.pinhole(w, h, args.fov)
-    t0 = time.perf_counter()
-    det = starid.detect(image, camera, sigma=args.sigma)
-    t_detect = time.perf_counter() - t0
-    cat = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
-    solver = starid.Solver(cat, camera, fov_error_deg=args.fov_error, method=args.method)
-    if args.method == "nstar":
-        solver.warm_up()  # the reported time is the solve's, not the compiled code's loading
-    sol = solver.solve(det)
-    out = solution_record(sol, cat)
-    out["detections"] = len(det)
-    out["detect_ms"] = round(t_detect * 1e3, 2)
-    if truth_q is not None and sol.ok:
-        err = np.degrees(starid.rotations.angle_between(sol.q_cam_icrs, truth_q)) * 3600
-        out["error_vs_truth_arcsec"] = round(float(err), 2)
-    if args.overlay:
-        import cv2
+        frames = [(p.name, lambda p=p: read_image(p)) for p in paths]
+    solvers = _Solvers(args)
+    records = []
+    bar = None
+    if len(frames) > 1:
+        from tqdm import tqdm
 
-        from adfusion.app.overlay import draw_solution
+        bar = tqdm(total=len(frames), unit="image", file=sys.stderr, disable=None)
+    for name, load in frames:
+        try:
+            image = load()
+        except (ValueError, FileNotFoundError) as e:
+            if len(frames) == 1:
+                raise
+            rec = {"image": name, "ok": False, "reason": str(e)}
+        else:
+            camera = ex.camera if args.example else solvers.camera_for(image.shape[1],
+                                                                       image.shape[0])
+            solver = solvers.solver_for(camera)
+            t0 = time.perf_counter()
+            det = starid.detect(image, camera, sigma=args.sigma)
+            t_detect = time.perf_counter() - t0
+            sol = solver.solve(det)
+            rec = {"image": name, **solution_record(sol, solver.catalog, det.xy)}
+            rec["detections"] = len(det)
+            rec["detect_ms"] = round(t_detect * 1e3, 2)
+            rec["epoch"] = solvers.epoch
+            if truth_q is not None and sol.ok:
+                err = np.degrees(starid.rotations.angle_between(sol.q_cam_icrs, truth_q)) * 3600
+                rec["error_vs_truth_arcsec"] = round(float(err), 2)
+            if out_dir is not None:
+                _write_products(out_dir, name, rec, sol, args, solvers.epoch)
+            if args.overlay:
+                import cv2
 
-        if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
-            raise ValueError(f"could not write the overlay to {args.overlay}")
+                from adfusion.app.overlay import draw_solution
+
+                if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
+                    raise ValueError(f"could not write the overlay to {args.overlay}")
+        records.append(rec)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"{sum(r['ok'] for r in records)} solved")
+    if bar is not None:
+        bar.close()
+    all_ok = all(r["ok"] for r in records)
+    if len(records) > 1:
+        from adfusion.app.products import summary_table
+
+        if args.json:
+            print(json.dumps({"images": records, "n": len(records),
+                              "solved": sum(r["ok"] for r in records)}, indent=2))
+        else:
+            print(summary_table(records))
+        return 0 if all_ok else 1
+    out = records[0]
     if args.json:
         print(json.dumps(out, indent=2))
-        return 0 if sol.ok else 1
-    print(f"{len(det)} stars detected in {out['detect_ms']} ms; identification "
-          f"{'ok' if sol.ok else 'NOT ok'} in {out['time_ms']} ms ({out['path'] or '-'})")
-    if not sol.ok:
-        print(f"reason: {sol.reason}")
-        return 1
+        return 0 if out["ok"] else 1
+    _print_solution(out)
+    return 0 if out["ok"] else 1
+
+
+def _write_products(out_dir, name: str, rec: dict, sol, args: argparse.Namespace,
+                    epoch: float) -> None:
+    from pathlib import Path
+
+    from adfusion.app.products import write_corr, write_wcs
+
+    stem = Path(name).stem
+    (out_dir / f"{stem}.json").write_text(json.dumps(rec, indent=2) + "\n")
+    if sol.ok and args.wcs:
+        write_wcs(out_dir / f"{stem}.wcs", sol, epoch)
+    if sol.ok and args.corr:
+        write_corr(out_dir / f"{stem}.corr", sol, rec["matches"])
+
+
+def _print_solution(out: dict) -> None:
+    print(f"{out.get('detections', 0)} stars detected in {out.get('detect_ms', 0)} ms; "
+          f"identification {'ok' if out['ok'] else 'NOT ok'} in {out.get('time_ms', 0)} ms "
+          f"({out.get('path') or '-'})")
+    if not out["ok"]:
+        print(f"reason: {out['reason']}")
+        return
     print(f"boresight RA {out['ra_deg']:.5f}°  Dec {out['dec_deg']:+.5f}°  roll "
           f"{out['roll_deg']:.4f}°   (1σ {out['sigma_arcsec'][0]:.1f}″ / "
           f"{out['sigma_arcsec'][1]:.1f}″ / {out['sigma_arcsec'][2]:.1f}″ about x/y/z)")
-    print(f"FOV {out['fov_x_deg']:.4f}°, {len(sol.matches)} stars matched, RMS residual "
-          f"{out['rms_residual_arcsec']:.1f}″, false-match probability {sol.p_false:.1e}")
+    print(f"FOV {out['fov_x_deg']:.4f}°, {len(out['matches'])} stars matched, RMS residual "
+          f"{out['rms_residual_arcsec']:.1f}″, false-match probability {out['p_false']:.1e}")
     if "error_vs_truth_arcsec" in out:
         print(f"error against the rendered truth: {out['error_vs_truth_arcsec']}″")
-    print(f"{'det':>4} {'id':>8} {'residual″':>10}")
+    print(f"{'det':>4} {'x':>8} {'y':>8} {'id':>8} {'RA°':>10} {'Dec°':>10} {'mag':>6} "
+          f"{'residual″':>10}")
     for m in out["matches"]:
-        print(f"{m['detection']:>4} {m['id']:>8} {m['residual_arcsec']:>10.2f}")
+        print(f"{m['detection']:>4} {m['x']:>8.2f} {m['y']:>8.2f} {m['id']:>8} "
+              f"{m['ra_deg']:>10.5f} {m['dec_deg']:>+10.5f} {m['mag']:>6.2f} "
+              f"{m['residual_arcsec']:>10.2f}")
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    from adfusion.starid import cache
+
+    root = cache.cache_dir()
+    if args.action == "clear":
+        n, size = cache.cache_clear(args.kind)
+        msg = {"removed": n, "bytes": size, "dir": str(root) if root else None}
+        print(json.dumps(msg) if args.json else
+              f"removed {n} cache entr{'y' if n == 1 else 'ies'} ({size / 1e6:.1f} MB)"
+              f" from {root}")
+        return 0
+    entries = cache.cache_info()
+    total = sum(e.size for e in entries)
+    limit = cache.cache_limit_bytes()
+    if args.json:
+        print(json.dumps({"dir": str(root) if root else None, "limit_bytes": limit,
+                          "total_bytes": total,
+                          "entries": [{"file": e.path.name, "kind": e.kind, "bytes": e.size,
+                                       "last_used": e.last_used} for e in entries]}, indent=2))
+        return 0
+    if root is None:
+        print("caching is off (ADFUSION_CACHE_DIR=off)")
+        return 0
+    print(f"{root}: {len(entries)} entries, {total / 1e6:.1f} MB of {limit / 1e6:.0f} MB "
+          f"(ADFUSION_CACHE_MAX_MB); least recently used go first")
+    import datetime as dt
+
+    for e in entries:
+        when = dt.datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
+        print(f"  {e.kind:16s} {e.size / 1e6:9.1f} MB  used {when}  {e.path.name}")
     return 0
 
 
-def solution_record(sol, cat=None) -> dict:
-    """JSON-ready summary of a :class:`starid.Solution` (the CLI's and the logs' format)."""
+def solution_record(sol, cat=None, xy=None) -> dict:
+    """JSON-ready summary of a :class:`starid.Solution` (the CLI's and the logs' format).
+
+    With the catalogue and the detections' pixels, each match carries its pixel, the
+    catalogue star's RA/Dec and magnitude, and the predicted pixel
+    (:func:`adfusion.app.products.match_rows`)."""
     import numpy as np
 
     rec: dict = {
@@ -257,6 +465,10 @@ def solution_record(sol, cat=None) -> dict:
                       "residual_arcsec": float(np.degrees(r) * 3600)}
                      for (d, i), r in zip(sol.matches, sol.residuals_rad, strict=True)],
         )
+        if cat is not None and xy is not None:
+            from adfusion.app.products import match_rows
+
+            rec["matches"] = match_rows(sol, cat, xy)
     else:
         rec["candidates"] = [
             {"ra_dec_roll_deg": list(c.radec_roll_deg), "p_false": c.p_false,
