@@ -33,15 +33,22 @@ class LostInSpace:
 
     def _focal_scales(self) -> list[float]:
         """Focal-length multipliers covering the FOV uncertainty (1.0 first)."""
-        if self.fov_error_deg == 0:
+        if not self._fov_uncertain:
             return [1.0]
         half = np.radians(self.camera.fov_x_deg) / 2
-        lo = np.tan(half) / np.tan(half + np.radians(self.fov_error_deg) / 2)
-        hi = np.tan(half) / np.tan(max(half - np.radians(self.fov_error_deg) / 2, 1e-6))
+        if self.fov_range_deg is not None:
+            # focal scale k turns the nominal FOV into 2·atan(tan(half) / k)
+            fov_lo, fov_hi = np.radians(self.fov_range_deg) / 2
+            lo = np.tan(half) / np.tan(fov_hi)
+            hi = np.tan(half) / np.tan(fov_lo)
+        else:
+            lo = np.tan(half) / np.tan(half + np.radians(self.fov_error_deg) / 2)
+            hi = np.tan(half) / np.tan(max(half - np.radians(self.fov_error_deg) / 2, 1e-6))
         n = max(3, int(np.ceil(np.log(hi / lo) / np.log1p(self._scale_step))) + 1)
         grid = np.exp(np.linspace(np.log(lo), np.log(hi), n))
         order = np.argsort(np.abs(np.log(grid)))
-        return [1.0, *[float(g) for g in grid[order] if abs(np.log(g)) > 1e-12]]
+        rest = [float(g) for g in grid[order] if abs(np.log(g)) > 1e-12]
+        return [1.0, *rest] if lo <= 1.0 <= hi else rest
 
     _scale_step = 0.01  # 1 % focal steps; windows widen by half a step × distance
 
@@ -123,7 +130,7 @@ class LostInSpace:
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
         one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
         b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
-        rel_tol = 0.5 * self._scale_step if self.fov_error_deg else 0.0
+        rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
         # every pattern's pair windows come from one table per focal guess: cheaper than
         # building them per pattern
         tables = [PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]

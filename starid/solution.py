@@ -118,6 +118,10 @@ class Solution:
     camera: Camera | None = None
     n_detections: int = 0
     patterns_tried: int = 0
+    #: a-posteriori 1-σ centroid noise (px) the covariance uses (None: not estimated)
+    sigma_px: float | None = None
+    #: what the solver decided on the way that the caller should know (not an error)
+    note: str = ""
 
     @property
     def ra_dec_roll_deg(self) -> tuple[float, float, float] | None:

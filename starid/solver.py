@@ -50,6 +50,7 @@ from adfusion.starid.camera import Camera
 from adfusion.starid.index import PatternIndex
 from adfusion.starid.lost_in_space import LostInSpace, PairWindows, Search
 from adfusion.starid.nstar import Pattern, match_faithful, match_indexed
+from adfusion.starid.refine import Refinement
 from adfusion.starid.solution import Candidate, Prior, Solution
 from adfusion.starid.tracking import Tracking, corner_sigma_px, pair_within
 from adfusion.starid.triad_bridge import TriadBridge
@@ -76,7 +77,7 @@ _one_to_one, _keeps_pattern, _rotation_from_pairs = one_to_one, keeps_pattern, r
 _distinct = distinct_candidates
 
 
-class Solver(LostInSpace, Tracking, TriadBridge, Verification):
+class Solver(LostInSpace, Tracking, TriadBridge, Verification, Refinement):
     """Lost-in-space identification against a catalogue for one camera.
 
     Args:
@@ -89,6 +90,15 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
         n_max, n_min: pattern sizes (renken.md: 3…6).
         p_false_max: acceptance threshold on the false-match probability.
         fov_error_deg: ± uncertainty of the camera's horizontal FOV (0 = known).
+        fov_range_deg: instead, the horizontal FOV as a range (lo, hi) in degrees; the
+            camera is the nominal model (its FOV is tried first, then outwards). The
+            field is searched on a grid of focal scales within ``max_patterns`` per scale
+            and the ``work_budget``; the fitted camera comes back as ``Solution.camera``.
+        fit_camera: after identification, fit the camera to the matched stars:
+            ``"auto"`` (default) fits when the FOV is uncertain, ``"none"`` never,
+            ``"focal"`` the focal length only, ``"full"`` always the full model selected
+            by the data (focal length, pixel aspect, principal point, OpenCV radial and
+            tangential distortion; :func:`starid.calibrate.fit_camera_model`).
         faithful: use Renken's reference nested loops instead of the index (slow).
         n_bands: Renken's declination sub-catalogues (1 = none); results are identical.
         dec_check: Renken's declination-difference pre-check (faithful mode only).
@@ -124,6 +134,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
         n_min: int = 3,
         p_false_max: float = 1e-6,
         fov_error_deg: float = 0.0,
+        fov_range_deg: tuple[float, float] | None = None,
+        fit_camera: str = "auto",
         faithful: bool = False,
         n_bands: int = 1,
         dec_check: bool = True,
@@ -153,6 +165,23 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
             raise ValueError(f"need 2 ≤ n_min ≤ n_max ≤ 8, got {n_min}, {n_max}")
         if centroid_sigma_px <= 0 or not np.isfinite(centroid_sigma_px):
             raise ValueError("centroid_sigma_px must be positive")
+        if fov_range_deg is not None:
+            try:
+                lo, hi = (float(v) for v in fov_range_deg)
+            except (TypeError, ValueError):
+                raise ValueError(f"fov_range_deg must be (lo, hi) in degrees, got "
+                                 f"{fov_range_deg!r}") from None
+            if not (0 < lo <= hi < 179):
+                raise ValueError(f"fov_range_deg must satisfy 0 < lo ≤ hi < 179, got "
+                                 f"({lo:g}, {hi:g})")
+            if fov_error_deg:
+                raise ValueError("give fov_range_deg or fov_error_deg, not both")
+            if camera.model != "pinhole":
+                raise ValueError("fov_range_deg needs a pinhole camera model")
+            fov_range_deg = (lo, hi)
+        if fit_camera not in ("auto", "none", "focal", "full"):
+            raise ValueError(f"fit_camera must be 'auto', 'none', 'focal' or 'full', got "
+                             f"{fit_camera!r}")
         if not 0 <= fov_error_deg < camera.fov_x_deg:
             raise ValueError(f"fov_error_deg must be in [0, {camera.fov_x_deg:.2f}) for this "
                              f"camera, got {fov_error_deg}")
@@ -177,6 +206,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
         self.n_max, self.n_min = n_max, n_min
         self.p_false_max = p_false_max
         self.fov_error_deg = float(fov_error_deg)
+        self.fov_range_deg = fov_range_deg
+        self._fov_uncertain = bool(fov_error_deg) or fov_range_deg is not None
+        self.fit_camera = fit_camera
         self.faithful = faithful
         self.n_bands = int(n_bands)
         self.dec_check = dec_check
@@ -184,7 +216,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
         self.max_patterns = int(max_patterns)
         self.work_budget = int(work_budget)
         # the index must reach across the widest field any focal guess gives
-        widest = camera.scaled(min(self._focal_scales())) if fov_error_deg else camera
+        widest = camera.scaled(min(self._focal_scales())) if self._fov_uncertain else camera
         self.max_sep_rad = float(np.radians(widest.diagonal_fov_deg) + 2 * self.tolerance_rad)
         tag = _catalog_tag(self.vectors) if cache else None
         t0 = time.perf_counter()
@@ -227,12 +259,13 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
                                 mode="tracking", time_s=time.perf_counter() - t0,
                                 n_detections=len(xy))
         if self.method == "triad":
-            sol = self._solve_triad(xy)
+            sol = self._refine(self._solve_triad(xy), self._all_xy(detections, xy))
             return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
-                            patterns_tried=1)
+                           patterns_tried=1)
         cams = [self.camera.scaled(k) if k != 1.0 else self.camera
                 for k in self._focal_scales()]
         sol, tried = self._solve_at(xy, cams)
+        sol = self._refine(sol, self._all_xy(detections, xy))
         if fallback_note and not sol.ok:
             sol = replace(sol, reason=fallback_note + sol.reason)
         return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
@@ -331,6 +364,23 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification):
                 return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
                            f"{int(dup[0, 1])}"
         return use, ""
+
+    def _all_xy(self, detections, use: NDArray) -> NDArray[np.float64]:
+        """Every detection (not only the brightest ``max_detections`` the search uses),
+        in the order of ``use``, for the final fit; positions outside the frame dropped
+        from the end."""
+        if hasattr(detections, "xy"):
+            xy = np.asarray(detections.xy, dtype=np.float64)
+        else:
+            arr = np.asarray(detections, dtype=np.float64)
+            if arr.shape[1] == 3:
+                arr = arr[np.argsort(-arr[:, 2], kind="stable")]
+            xy = arr[:, :2]
+        if len(xy) <= len(use):
+            return use
+        rest = xy[len(use):]
+        rest = rest[self.camera.in_frame(rest)]
+        return np.concatenate([use, rest])
 
     def _match(self, pattern: Pattern) -> NDArray[np.int64]:
         if self.faithful:

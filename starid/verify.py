@@ -199,7 +199,7 @@ class Verification:
         radius = self._match_radius_px() * cam.pixel_scale_rad
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
         refit = False
-        if self.fov_error_deg > 0 and len(det_i) >= 4:
+        if self._fov_uncertain and len(det_i) >= 4:
             cam = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
                              try_mirror=False).camera
             b_all = cam.pixels_to_vectors(xy)
