@@ -20,17 +20,11 @@ bound it for any magnitude limit.
 
 The epoch: a cache entry is keyed by the catalogue's stars (ids and magnitudes), not by
 their positions, and keeps the positions it was built from. A catalogue of the same stars
-at another epoch reuses it while no star has moved more than ``reuse_drift_rad`` (1″ by
-default: years for all but a handful of stars), with the current positions in
-``vectors``; beyond that it is rebuilt in place, so the cache holds one entry per star set.
-
-Example:
-    >>> import numpy as np
-    >>> from adfusion.starid.index import PatternIndex
-    >>> v = np.array([[1, 0, 0], [np.cos(0.1), np.sin(0.1), 0], [0, 1, 0.0]])
-    >>> idx = PatternIndex.from_vectors(v, max_sep_rad=0.5)
-    >>> idx.pairs_in_window(np.cos(0.11), np.cos(0.09))
-    (array([0]), array([1]))
+at another epoch reuses it while no star has moved more than ``reuse_drift_rad`` (5″ by
+default), with the current positions in ``vectors`` (what the matchers' link tests and the
+verification use) and the pair cosines of the build epoch (stale by at most twice the
+drift, a tenth of the narrowest pair window); beyond that it is rebuilt in place, so the
+cache holds one entry per star set and camera.
 """
 
 from __future__ import annotations
@@ -52,7 +46,10 @@ IntArray = NDArray[np.int64]
 N_BINS = 512  # angle bins per neighbour row (≈ 0.04° for a 20° field)
 INDEX_LAYOUT = 3  # bump when the stored arrays change: old cache entries are then ignored
 DEFAULT_MAX_GB = 1.5
-REUSE_DRIFT_RAD = math.radians(1.0 / 3600.0)
+# 5″: a tenth of the smallest pair tolerance in use (≥ 0.003° + the centroid term), so a
+# reused index's pair cosines are stale by far less than its windows; α Cen (3.7″/yr) and
+# Groombridge 1830 (7″/yr, V 6.4) trigger a rebuild every year or so, nothing else does
+REUSE_DRIFT_RAD = math.radians(5.0 / 3600.0)
 # peak bytes of the build per pair and per star (measured: benchmarks/bench_deep_index.py;
 # the stored arrays take 40 B a pair and 2 kB a star, the sorts' temporaries the rest)
 _BUILD_BYTES_PER_PAIR = 88

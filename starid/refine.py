@@ -124,7 +124,7 @@ class Refinement:
                 b = cam.pixels_to_vectors(xy_all[det])
                 w = wahba_unit(b, self.vectors[cat], sigma0 * pix)
                 q = w.q_cam_icrs
-                pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.torot.to_matrix(q).T)
+                pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.to_matrix(q).T)
                 res_px = pred - xy_all[det]
                 n_par = 3
             sigma_px = noise_from_residuals(res_px, radius_px, n_par)

@@ -81,16 +81,16 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                     help="camera file to write (accepted by --camera)")
     cb.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
     cb.add_argument("--fov-error", type=float, default=None,
-                    help="± uncertainty of --fov, degrees (default 5 %% of --fov)")
+                    help="± uncertainty of --fov, degrees (default 5 %% of the FOV)")
     cb.add_argument("--camera", metavar="YAML", help="starting camera instead of --fov")
     cb.add_argument("--mag-limit", type=float, default=7.5,
                     help="catalogue limit for the fit's stars (default 7.5)")
     cb.add_argument("--epoch", type=float, default=None,
                     help="observation epoch, Julian year (default: now)")
     cb.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
-    cb.add_argument("--distortion", choices=["none", "k1", "k1k2", "k1k2p", "k1k2k3p"],
-                    default="k1k2p", help="OpenCV terms to fit (default k1k2p: k1, k2, p1, "
-                    "p2)")
+    cb.add_argument("--terms", default="focal,principal,k1,k2,tangential",
+                    help="what to fit, comma-separated from focal, principal, aspect, k1, k2, "
+                         "tangential (default: all but aspect), or 'auto' (chosen by BIC)")
     cb.add_argument("--json", action="store_true", help="print JSON instead of text")
     cb.set_defaults(func=cmd_calibrate)
 
@@ -441,6 +441,73 @@ def cmd_cache(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from adfusion import starid
+    from adfusion.starid.camera_file import read_camera_yaml, write_camera_yaml
+    from adfusion.starid.detect import read_image
+    from adfusion.starid.joint_calibration import calibrate_frames
+
+    paths = _image_paths(args.images)
+    if args.camera:
+        camera = read_camera_yaml(args.camera)
+    elif args.fov is None:
+        raise ValueError("--fov (horizontal field of view estimate, degrees) or --camera "
+                         "(a starting camera YAML) is required")
+    terms = "auto" if args.terms.strip() == "auto" else tuple(
+        t.strip() for t in args.terms.split(",") if t.strip())
+    epoch = args.epoch if args.epoch is not None else _julian_year_now()
+    dets: list = []
+    shape: tuple = ()
+    from tqdm import tqdm
+
+    for p in tqdm(paths, desc="detect", unit="image", file=sys.stderr, disable=None):
+        img = read_image(p)
+        if not args.camera:
+            if dets and img.shape[:2] != shape:
+                raise ValueError(f"{p.name} is {img.shape[1]}×{img.shape[0]}, the first frame "
+                                 f"{shape[1]}×{shape[0]}: one camera, one image size")
+            shape = img.shape[:2]
+            camera = starid.Camera.pinhole(shape[1], shape[0], args.fov)
+        dets.append(starid.detect(img, camera, sigma=args.sigma))
+    err = args.fov_error if args.fov_error is not None else 0.05 * camera.fov_x_deg
+    deep = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
+    ident = starid.Catalog.hipparcos(mag_limit=min(args.mag_limit, 6.5), epoch=epoch)
+    t0 = time.perf_counter()
+    res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms,
+                           fov_error_deg=err)
+    cam = res.camera
+    write_camera_yaml(cam, args.output,
+                      comment=f"adfusion calibrate: {res.n_frames} frames, "
+                              f"{sum(res.stars_per_frame)} stars, terms {','.join(res.fit.terms)}",
+                      sigma_px=res.sigma_px, rms_px=res.fit.rms_px, frames=res.n_frames)
+    per_frame = [{"image": paths[k].name, "stars": n,
+                  "rms_px": round(float(np.sqrt(np.mean(np.sum(r * r, axis=1)))), 3)}
+                 for k, n, r in zip(res.frames_used, res.stars_per_frame, res.fit.residuals_px,
+                                    strict=True)]
+    out = {"output": str(args.output), "frames_used": res.n_frames,
+           "frames_failed": {paths[k].name: r for k, r in res.frames_failed.items()},
+           "terms": list(res.fit.terms), "sigma_px": round(res.sigma_px, 4),
+           "rms_px": round(res.fit.rms_px, 4), "fov_x_deg": cam.fov_x_deg,
+           "K": cam.K.tolist(), "D": cam.D.tolist(), "frames": per_frame,
+           "time_s": round(time.perf_counter() - t0, 2)}
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0 if not res.frames_failed else 1
+    print(f"camera from {res.n_frames} frames, {sum(res.stars_per_frame)} stars "
+          f"({', '.join(res.fit.terms)}): RMS {res.fit.rms_px:.3f} px, σ {res.sigma_px:.3f} px "
+          f"→ {args.output}")
+    print(f"fx {cam.K[0, 0]:.2f}  fy {cam.K[1, 1]:.2f}  cx {cam.K[0, 2]:.2f}  "
+          f"cy {cam.K[1, 2]:.2f}  (FOV {cam.fov_x_deg:.4f}°)")
+    print("D (k1 k2 p1 p2 k3): " + " ".join(f"{d:+.5f}" for d in cam.D))
+    for f in per_frame:
+        print(f"  {f['image']:40s} {f['stars']:4d} stars  RMS {f['rms_px']:.3f} px")
+    for name, reason in out["frames_failed"].items():
+        print(f"  {name:40s} left out: {reason}")
+    return 0 if not res.frames_failed else 1
+
+
 def solution_record(sol, cat=None, xy=None) -> dict:
     """JSON-ready summary of a :class:`starid.Solution` (the CLI's and the logs' format).
 
@@ -463,6 +530,7 @@ def solution_record(sol, cat=None, xy=None) -> dict:
                           for v in np.diag(sol.covariance)],
             covariance_rad2=np.asarray(sol.covariance).tolist(),
             fov_x_deg=sol.camera.fov_x_deg,
+            camera=sol.camera.to_dict(),
             rms_residual_arcsec=sol.rms_residual_arcsec,
             matches=[{"detection": d, "id": i,
                       "residual_arcsec": float(np.degrees(r) * 3600)}
