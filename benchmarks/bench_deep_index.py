@@ -149,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     report = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
                           "load_avg_1min": round(os.getloadavg()[0], 2)},
-              "index_max_gb": os.environ.get("ADFUSION_INDEX_MAX_GB", "2 (default)"),
+              "index_max_gb": os.environ.get("ADFUSION_INDEX_MAX_GB", "1.5 (default)"),
               "cases": [_in_child(c) for c in cases]}
     if args.json:
         print(json.dumps(report, indent=2))

@@ -63,7 +63,7 @@ def write_wcs(path: str | Path, sol, epoch: float | None = None) -> Path:
     h = wcs_header(sol.camera, sol.q_cam_icrs)
     if epoch is not None:
         h["EPOCH"] = (float(epoch), "catalogue epoch, Julian year")
-    h["PIXORIGN"] = (1, "FITS pixels: 1-based (adfusion's are 0-based)")
+    h["PIXORIGN"] = (1, "pixels counted from 1 (adfusion: 0)")
     p = Path(path)
     fits.PrimaryHDU(header=h).writeto(p, overwrite=True)
     return p
@@ -100,7 +100,7 @@ def write_corr(path: str | Path, sol, rows: list[dict]) -> Path:
         col("RESIDUAL", "D", [r["residual_arcsec"] for r in rows], "arcsec"),
     ]
     hdu = fits.BinTableHDU.from_columns(cols)
-    hdu.header["PIXORIGN"] = (0, "pixel centres counted from 0 (FITS/solve-field: 1)")
+    hdu.header["PIXORIGN"] = (0, "pixels counted from 0 (FITS: 1)")
     p = Path(path)
     fits.HDUList([fits.PrimaryHDU(), hdu]).writeto(p, overwrite=True)
     return p
