@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from adfusion import starid
-from adfusion.app.cli import main
 from adfusion.starid import rotations as rot
 from adfusion.starid.camera_file import read_camera_yaml, write_camera_yaml
 from adfusion.starid.wcs import camera_wcs, wcs_header
+
+from adfusion import starid
+from adfusion.app.cli import main
 
 astropy_wcs = pytest.importorskip("astropy.wcs")
 fits = pytest.importorskip("astropy.io.fits")
