@@ -7,10 +7,11 @@ case runs in a fresh process (so its peak RSS is its own) with an empty cache:
 * ``build``: catalogue load, selection, ``Solver`` construction (the index build),
   ``warm_up``; wall and CPU seconds, the process' peak RSS, index size and pair count;
 * ``solve``: lost-in-space frames at random attitudes (wall ms as ``Solution.time_s``
-  and the process' CPU ms: on a shared machine the wall time is mostly waiting). Every Hipparcos star to V 9 in the
-  field is a detection (0.3 px centroid noise, 0.2 mag brightness noise before ranking, so
-  the order is not the catalogue's), the solver sees the brightest 30; correct = every frame
-  corner within 2 px of where the true attitude puts it. Median / p95 solve ms and counts;
+  and the process' CPU ms: on a shared machine the wall time is mostly waiting). Every
+  Hipparcos star to the limit in the field is a detection (0.3 px centroid noise, 0.2 mag
+  brightness noise before ranking, so the order is not the catalogue's), the solver sees
+  the brightest 30; correct = every frame corner within 2 px of where the true attitude
+  puts it. Median / p95 solve ms and counts;
 * ``mag 99`` with the selection (must fit) and ``V 9`` *without* it (must fail at once
   with the one-line memory error rather than allocate).
 
