@@ -46,6 +46,7 @@ def write_camera_yaml(camera: Camera, path: str | os.PathLike[str],
         fs.write("image_width", int(camera.width))
         fs.write("image_height", int(camera.height))
         fs.write("camera_matrix", np.asarray(camera.K, np.float64))
+        # OpenCV files always carry the coefficients: none is written as five zeros
         d = np.zeros(5) if camera.D.size == 0 else np.asarray(camera.D, np.float64)
         fs.write("distortion_coefficients", d.reshape(1, -1))
         fs.write("model", camera.model)
@@ -81,8 +82,6 @@ def read_camera_yaml(path: str | os.PathLike[str]) -> Camera:
         parity = 1 if parity_node.empty() else int(parity_node.real())
     finally:
         fs.release()
-    if D.size and not np.any(D):
-        D = np.zeros(0)
     try:
         return Camera(K, D, int(w), int(h), model, parity)
     except ValueError as e:

@@ -21,7 +21,7 @@ Example (synthetic: the same lens seen at three attitudes):
     >>> from adfusion.starid.catalog import Catalog
     >>> from adfusion.starid.joint_calibration import calibrate_frames
     >>> from adfusion.starid.view import stars_in_view
-    >>> cat = Catalog.hipparcos(mag_limit=7.0)
+    >>> cat, bright = Catalog.hipparcos(mag_limit=6.0), Catalog.hipparcos(mag_limit=5.0)
     >>> true = Camera(np.array([[1500.0, 0, 500], [0, 1500.0, 390], [0, 0, 1]]),
     ...               [-0.2, 0.05, 0.0, 0.0, 0.0], 1024, 768)
     >>> frames = []
@@ -29,7 +29,7 @@ Example (synthetic: the same lens seen at three attitudes):
     ...     _, xy = stars_in_view(cat, true, rot.q_cam_icrs_from_radec_roll(ra, 0.3, 0.5))
     ...     frames.append(xy)
     >>> res = calibrate_frames(frames, Camera.pinhole(1024, 768, 37.0), cat,
-    ...                        fov_error_deg=2.0)
+    ...                        id_catalog=bright, fov_error_deg=2.0)
     >>> res.n_frames, round(float(res.camera.K[0, 0])), round(float(res.camera.D[0]), 3)
     (3, 1500, -0.2)
 """

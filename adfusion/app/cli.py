@@ -5,8 +5,8 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 
 Example:
     >>> from adfusion.app.cli import build_parser
-    >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:4]
-    ['bench', 'catalog', 'demo', 'detect']
+    >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:5]
+    ['bench', 'cache', 'calibrate', 'catalog', 'demo']
 """
 
 from __future__ import annotations
