@@ -320,13 +320,13 @@ def cmd_solve(args: argparse.Namespace) -> int:
     for name, load in frames:
         try:
             image = load()
-        except (ValueError, FileNotFoundError) as e:
+            camera = ex.camera if args.example else solvers.camera_for(image.shape[1],
+                                                                       image.shape[0])
+        except (ValueError, FileNotFoundError) as e:  # this image's problem: say so, go on
             if len(frames) == 1:
                 raise
             rec = {"image": name, "ok": False, "reason": str(e)}
         else:
-            camera = ex.camera if args.example else solvers.camera_for(image.shape[1],
-                                                                       image.shape[0])
             solver = solvers.solver_for(camera)
             t0 = time.perf_counter()
             det = starid.detect(image, camera, sigma=args.sigma)
