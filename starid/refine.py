@@ -18,7 +18,7 @@ camera. :class:`Refinement` then lets the frame speak (issue 14, items 2 and 3):
 
 Example:
     >>> import numpy as np
-    >>> r = np.random.default_rng(1).normal(0, 2.0, (4000, 2))
+    >>> r = np.random.default_rng(1).normal(0, 2.0, (20000, 2))
     >>> round(noise_from_residuals(r, radius_px=1e9, n_params=0), 1)
     2.0
     >>> d = np.hypot(*r.T)
@@ -124,7 +124,7 @@ class Refinement:
                 b = cam.pixels_to_vectors(xy_all[det])
                 w = wahba_unit(b, self.vectors[cat], sigma0 * pix)
                 q = w.q_cam_icrs
-                pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.torot.to_matrix(q).T)
+                pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.to_matrix(q).T)
                 res_px = pred - xy_all[det]
                 n_par = 3
             sigma_px = noise_from_residuals(res_px, radius_px, n_par)
