@@ -43,13 +43,14 @@ __all__ = ["Refinement", "noise_from_residuals"]
 
 # beyond this many robust σ a pair is not the star (2-D Gaussian: 0.2 % of true pairs)
 _REJECT_SIGMA = 3.5
-# the match radius follows the estimated noise: this many σ (0.2 % of true pairs outside)
-_RADIUS_SIGMA = 3.5
+# the match radius follows the estimated noise: this many σ (wide: a small frame's first
+# estimate is low, and the residual test below still cuts at 3.5σ)
+_RADIUS_SIGMA = 5.0
 # ... but never beyond this many times the configured radius (a runaway on a bad frame)
 _RADIUS_MAX_FACTOR = 5.0
 # pseudo-degrees of freedom of the configured noise in the a-posteriori estimate: a frame
 # with few stars says little about its noise
-_PRIOR_DOF = 4.0
+_PRIOR_DOF = 2.0
 
 
 def noise_from_residuals(res_px: NDArray, radius_px: float, n_params: int) -> float:
@@ -102,8 +103,9 @@ class Refinement:
         ok_xy = np.isfinite(xy_all).all(axis=1)
         cam, q = cam0, sol.q_cam_icrs
         radius_px, sigma_px, n_par = r_min, sigma0, 3
+        trunc_px = r_min  # where the current pairs were cut off (radius or rejection)
         note = ""
-        for _ in range(4):
+        for _ in range(8):
             if len(det) < 3:
                 return sol
             pix = cam0.pixel_scale_rad
@@ -127,7 +129,7 @@ class Refinement:
                 pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.to_matrix(q).T)
                 res_px = pred - xy_all[det]
                 n_par = 3
-            sigma_px = noise_from_residuals(res_px, radius_px, n_par)
+            sigma_px = noise_from_residuals(res_px, trunc_px, n_par)
             if not math.isfinite(sigma_px):
                 sigma_px = sigma0
             radius_px = min(max(r_min, _RADIUS_SIGMA * sigma_px), _RADIUS_MAX_FACTOR * r_min)
@@ -140,11 +142,14 @@ class Refinement:
             d = np.hypot(*(xy_all[new_det] - cam.vectors_to_pixels(
                 self.vectors[new_cat] @ rot.to_matrix(q).T)).T)
             robust = math.sqrt(float(np.median(d * d)) / (2.0 * math.log(2.0)))
-            keep = d <= max(_REJECT_SIGMA * robust, 0.5 * r_min)
+            reject_px = max(_REJECT_SIGMA * robust, 0.5 * r_min)
+            keep = d <= reject_px
             n_rejected = int(np.count_nonzero(~keep))
             new_det, new_cat = new_det[keep], new_cat[keep]
             note = f"{n_rejected} pair(s) rejected by the residuals" if n_rejected else ""
-            if np.array_equal(new_det, det) and np.array_equal(new_cat, cat):
+            same = np.array_equal(new_det, det) and np.array_equal(new_cat, cat)
+            trunc_px = min(radius_px, reject_px)
+            if same:
                 break
             det, cat = new_det, new_cat
         if len(original & set(det.tolist())) < 0.5 * len(original) or len(det) < 3:
@@ -157,7 +162,7 @@ class Refinement:
                 return sol
             cam = fit.camera
             n_par = 3 + sum(2 if t in ("principal", "tangential") else 1 for t in fit.terms)
-            sigma_px = noise_from_residuals(fit.residuals_px[0], radius_px, n_par)
+            sigma_px = noise_from_residuals(fit.residuals_px[0], trunc_px, n_par)
             if not math.isfinite(sigma_px):
                 sigma_px = sigma0
         b = cam.pixels_to_vectors(xy_all[det])
