@@ -13,8 +13,8 @@ camera. :class:`Refinement` then lets the frame speak (issue 14, items 2 and 3):
 3. pairs whose residual the fit rejects (beyond 3.5 robust σ: a neighbour taken for the
    star, a blend) leave before the final fit;
 4. the final Wahba fit's covariance uses the estimated noise (shrunk towards the
-   configured one when the frame has few stars), so it neither trusts the configuration
-   nor lies to a filter.
+   configured one when the frame has few stars, and widened by ν/(ν − 2) for being an
+   estimate), so it neither trusts the configuration nor lies to a filter.
 
 Example:
     >>> import numpy as np
@@ -50,7 +50,7 @@ _RADIUS_SIGMA = 5.0
 _RADIUS_MAX_FACTOR = 5.0
 # pseudo-degrees of freedom of the configured noise in the a-posteriori estimate: a frame
 # with few stars says little about its noise
-_PRIOR_DOF = 2.0
+_PRIOR_DOF = 0.0
 
 
 def noise_from_residuals(res_px: NDArray, radius_px: float, n_params: int) -> float:
@@ -105,7 +105,7 @@ class Refinement:
         radius_px, sigma_px, n_par = r_min, sigma0, 3
         trunc_px = r_min  # where the current pairs were cut off (radius or rejection)
         note = ""
-        for _ in range(8):
+        for it in range(8):
             if len(det) < 3:
                 return sol
             pix = cam0.pixel_scale_rad
@@ -132,7 +132,11 @@ class Refinement:
             sigma_px = noise_from_residuals(res_px, trunc_px, n_par)
             if not math.isfinite(sigma_px):
                 sigma_px = sigma0
-            radius_px = min(max(r_min, _RADIUS_SIGMA * sigma_px), _RADIUS_MAX_FACTOR * r_min)
+            # the first pass opens wide (the verified pairs were cut at the configured radius:
+            # their spread says little when the frame is noisier); the residual test below
+            # cuts what does not belong, then the radius follows the estimate
+            radius_px = (_RADIUS_MAX_FACTOR * r_min if it == 0 else
+                         min(max(r_min, _RADIUS_SIGMA * sigma_px), _RADIUS_MAX_FACTOR * r_min))
             # every detection again, through this camera and attitude
             pred_xy, pred_idx = self._predict(rot.to_matrix(q), cam, 0.0)
             new_det, new_cat = _associate_px(xy_all, ok_xy, pred_xy, pred_idx, radius_px)
@@ -171,8 +175,13 @@ class Refinement:
         # a-posteriori noise, shrunk towards the configured value for small frames
         dof = max(2 * len(det) - n_par, 0)
         s2 = (dof * sigma_px**2 + _PRIOR_DOF * sigma0**2) / (dof + _PRIOR_DOF)
+        # an estimated variance makes the error Student-t rather than Gaussian: its
+        # covariance is ν/(ν − 2) times the plug-in one (ν the degrees of freedom)
+        nu = dof + _PRIOR_DOF
+        inflate = nu / (nu - 2.0) if nu > 4.0 else 2.0
         try:
-            w = wahba_unit(b, self.vectors[cat], math.sqrt(s2) * cam.pixel_scale_rad)
+            w = wahba_unit(b, self.vectors[cat],
+                           math.sqrt(s2 * inflate) * cam.pixel_scale_rad)
         except ValueError:
             return sol
         order = np.argsort(det)
