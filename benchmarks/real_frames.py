@@ -29,11 +29,14 @@ SETS = ("real-images", "real-images-cedar")
 
 
 def clipped_8bit(img: np.ndarray) -> np.ndarray:
-    """The frame as an 8-bit image whose black level sits at its median (half the sky
-    pixels become 0), scaled so the brightest pixel reaches 255 — a dark-subtracted PNG."""
-    a = img.astype(np.float64) - np.median(img)
-    top = float(np.percentile(a, 99.99)) or 1.0
-    return np.clip(np.round(a * 255.0 / top), 0, 255).astype(np.uint8)
+    """The frame as 8 bits (16-bit data: the top byte, as image viewers and OpenCV's
+    grey reader convert) with the black level at its median: half the sky becomes 0, as
+    from a camera with a black-level offset or a dark-subtracted PNG."""
+    a = img.astype(np.int64)
+    if img.dtype == np.uint16:
+        a = a >> 8
+    a = a - int(np.median(a))
+    return np.clip(a, 0, 255).astype(np.uint8)
 
 
 def frames(data: Path = DATA):

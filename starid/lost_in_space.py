@@ -13,18 +13,60 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from adfusion.starid import kernels
 from adfusion.starid.camera import Camera
 from adfusion.starid.nstar import Pattern, WorkBudgetExceeded, chirality_of, closest_pair_first
 from adfusion.starid.search_order import combination_order
-from adfusion.starid.solution import Solution
+from adfusion.starid.solution import Candidate, Solution
 from adfusion.starid.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
 
-__all__ = ["LostInSpace", "PairWindows", "Search"]
+__all__ = ["EVIDENCE_RATIO", "SHARED_FRACTION", "LostInSpace", "PairWindows", "Search",
+           "resolve_by_evidence"]
+
+
+#: the best candidate wins over the others when its p_false is this many times smaller
+EVIDENCE_RATIO = 1e6
+#: ... or when every other shares at least this fraction of its (detection, star) pairs
+SHARED_FRACTION = 0.5
+
+
+def resolve_by_evidence(cands: list[Candidate]) -> tuple[Candidate | None, str]:
+    """Of several verified, distinct attitudes: the best one and a note, when the evidence
+    decides — each other candidate either p_false :data:`EVIDENCE_RATIO` times weaker, or
+    sharing most of its star pairs with the best (a near-duplicate with a neighbour
+    swapped in) — else (None, "") for genuine ambiguity.
+
+    >>> import numpy as np
+    >>> from adfusion.starid.solution import Candidate
+    >>> def c(p, m):
+    ...     return Candidate(np.array([1.0, 0, 0, 0]), m, np.zeros(len(m)), p, 3, None,
+    ...                      np.eye(3))
+    >>> best, note = resolve_by_evidence([c(4e-54, [(i, i) for i in range(29)]),
+    ...                                   c(2e-12, [(i, i + 100) for i in range(11)])])
+    >>> best.p_false, note.split(":")[0]
+    (4e-54, 'best of 2 candidates')
+    >>> resolve_by_evidence([c(1e-9, [(0, 1), (1, 2), (2, 3)]), c(1e-8, [(0, 5), (1, 6),
+    ...                                                               (2, 7)])])[0] is None
+    True
+    """
+    ranked = sorted(cands, key=lambda c: c.p_false)
+    best, others = ranked[0], ranked[1:]
+    pairs = set(best.matches)
+    reasons = []
+    for o in others:
+        shared = len(pairs & set(o.matches)) / max(1, min(len(pairs), len(o.matches)))
+        if o.p_false >= EVIDENCE_RATIO * best.p_false:
+            reasons.append(f"p_false {o.p_false:.2g} vs {best.p_false:.2g}")
+        elif shared >= SHARED_FRACTION:
+            reasons.append(f"{shared:.0%} of its stars shared")
+        else:
+            return None, ""
+    return best, (f"best of {len(cands)} candidates: the others weaker by the evidence "
+                  f"({'; '.join(reasons)})")
 
 
 class LostInSpace:
@@ -146,6 +188,10 @@ class LostInSpace:
             if len(accepted) == 1:
                 return self._solution(accepted[0], len(assignments), path, cands), run.tried
             if len(accepted) > 1:
+                best, note = resolve_by_evidence(accepted)
+                if best is not None:
+                    sol = self._solution(best, len(assignments), path, cands)
+                    return replace(sol, note=note), run.tried
                 return Solution(
                     False, f"ambiguous: {len(accepted)} distinct attitudes verified",
                     matching_counter=len(assignments), path=path,

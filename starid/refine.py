@@ -13,12 +13,12 @@ camera. :class:`Refinement` then lets the frame speak (issue 14, items 2 and 3):
 3. pairs whose residual the fit rejects (beyond 3.5 robust σ: a neighbour taken for the
    star, a blend) leave before the final fit;
 4. the final Wahba fit's covariance uses the estimated noise (shrunk towards the
-   configured one when the frame has few stars), so it neither trusts the configuration
-   nor lies to a filter.
+   configured one when the frame has few stars, and widened by ν/(ν − 2) for being an
+   estimate), so it neither trusts the configuration nor lies to a filter.
 
 Example:
     >>> import numpy as np
-    >>> r = np.random.default_rng(1).normal(0, 2.0, (4000, 2))
+    >>> r = np.random.default_rng(1).normal(0, 2.0, (20000, 2))
     >>> round(noise_from_residuals(r, radius_px=1e9, n_params=0), 1)
     2.0
     >>> d = np.hypot(*r.T)
@@ -43,13 +43,14 @@ __all__ = ["Refinement", "noise_from_residuals"]
 
 # beyond this many robust σ a pair is not the star (2-D Gaussian: 0.2 % of true pairs)
 _REJECT_SIGMA = 3.5
-# the match radius follows the estimated noise: this many σ (0.2 % of true pairs outside)
-_RADIUS_SIGMA = 3.5
+# the match radius follows the estimated noise: this many σ (wide: a small frame's first
+# estimate is low, and the residual test below still cuts at 3.5σ)
+_RADIUS_SIGMA = 5.0
 # ... but never beyond this many times the configured radius (a runaway on a bad frame)
 _RADIUS_MAX_FACTOR = 5.0
 # pseudo-degrees of freedom of the configured noise in the a-posteriori estimate: a frame
 # with few stars says little about its noise
-_PRIOR_DOF = 4.0
+_PRIOR_DOF = 0.0
 
 
 def noise_from_residuals(res_px: NDArray, radius_px: float, n_params: int) -> float:
@@ -102,8 +103,9 @@ class Refinement:
         ok_xy = np.isfinite(xy_all).all(axis=1)
         cam, q = cam0, sol.q_cam_icrs
         radius_px, sigma_px, n_par = r_min, sigma0, 3
+        trunc_px = r_min  # where the current pairs were cut off (radius or rejection)
         note = ""
-        for _ in range(4):
+        for it in range(8):
             if len(det) < 3:
                 return sol
             pix = cam0.pixel_scale_rad
@@ -127,10 +129,14 @@ class Refinement:
                 pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.to_matrix(q).T)
                 res_px = pred - xy_all[det]
                 n_par = 3
-            sigma_px = noise_from_residuals(res_px, radius_px, n_par)
+            sigma_px = noise_from_residuals(res_px, trunc_px, n_par)
             if not math.isfinite(sigma_px):
                 sigma_px = sigma0
-            radius_px = min(max(r_min, _RADIUS_SIGMA * sigma_px), _RADIUS_MAX_FACTOR * r_min)
+            # the first pass opens wide (the verified pairs were cut at the configured radius:
+            # their spread says little when the frame is noisier); the residual test below
+            # cuts what does not belong, then the radius follows the estimate
+            radius_px = (_RADIUS_MAX_FACTOR * r_min if it == 0 else
+                         min(max(r_min, _RADIUS_SIGMA * sigma_px), _RADIUS_MAX_FACTOR * r_min))
             # every detection again, through this camera and attitude
             pred_xy, pred_idx = self._predict(rot.to_matrix(q), cam, 0.0)
             new_det, new_cat = _associate_px(xy_all, ok_xy, pred_xy, pred_idx, radius_px)
@@ -140,11 +146,14 @@ class Refinement:
             d = np.hypot(*(xy_all[new_det] - cam.vectors_to_pixels(
                 self.vectors[new_cat] @ rot.to_matrix(q).T)).T)
             robust = math.sqrt(float(np.median(d * d)) / (2.0 * math.log(2.0)))
-            keep = d <= max(_REJECT_SIGMA * robust, 0.5 * r_min)
+            reject_px = max(_REJECT_SIGMA * robust, 0.5 * r_min)
+            keep = d <= reject_px
             n_rejected = int(np.count_nonzero(~keep))
             new_det, new_cat = new_det[keep], new_cat[keep]
             note = f"{n_rejected} pair(s) rejected by the residuals" if n_rejected else ""
-            if np.array_equal(new_det, det) and np.array_equal(new_cat, cat):
+            same = np.array_equal(new_det, det) and np.array_equal(new_cat, cat)
+            trunc_px = min(radius_px, reject_px)
+            if same:
                 break
             det, cat = new_det, new_cat
         if len(original & set(det.tolist())) < 0.5 * len(original) or len(det) < 3:
@@ -157,7 +166,7 @@ class Refinement:
                 return sol
             cam = fit.camera
             n_par = 3 + sum(2 if t in ("principal", "tangential") else 1 for t in fit.terms)
-            sigma_px = noise_from_residuals(fit.residuals_px[0], radius_px, n_par)
+            sigma_px = noise_from_residuals(fit.residuals_px[0], trunc_px, n_par)
             if not math.isfinite(sigma_px):
                 sigma_px = sigma0
         b = cam.pixels_to_vectors(xy_all[det])
@@ -166,8 +175,13 @@ class Refinement:
         # a-posteriori noise, shrunk towards the configured value for small frames
         dof = max(2 * len(det) - n_par, 0)
         s2 = (dof * sigma_px**2 + _PRIOR_DOF * sigma0**2) / (dof + _PRIOR_DOF)
+        # an estimated variance makes the error Student-t rather than Gaussian: its
+        # covariance is ν/(ν − 2) times the plug-in one (ν the degrees of freedom)
+        nu = dof + _PRIOR_DOF
+        inflate = nu / (nu - 2.0) if nu > 4.0 else 2.0
         try:
-            w = wahba_unit(b, self.vectors[cat], math.sqrt(s2) * cam.pixel_scale_rad)
+            w = wahba_unit(b, self.vectors[cat],
+                           math.sqrt(s2 * inflate) * cam.pixel_scale_rad)
         except ValueError:
             return sol
         order = np.argsort(det)

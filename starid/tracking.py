@@ -29,6 +29,22 @@ __all__ = ["Tracking", "corner_sigma_px", "pair_within"]
 class Tracking:
     """The tracking half of :class:`starid.Solver` (a mixin)."""
 
+    def _pairings_that_fit(self, b: NDArray, xy: NDArray, pred_xy: NDArray,
+                           pred_idx: NDArray, gate_px: float) -> int:
+        """How many pairs of distinct catalogue stars, one predicted within ``gate_px`` of
+        each of two detections (pixels ``xy``, directions ``b``), have the detections'
+        separation within the pair tolerance: 1 when the pairing is unique."""
+        near = [pred_idx[np.einsum("ij,ij->i", pred_xy - p, pred_xy - p) <= gate_px**2]
+                for p in xy]
+        if len(near[0]) == 0 or len(near[1]) == 0:
+            return 0
+        sep = math.acos(min(1.0, max(-1.0, float(b[0] @ b[1]))))
+        cosines = self.vectors[near[0]] @ self.vectors[near[1]].T
+        ang = np.arccos(np.clip(cosines, -1.0, 1.0))
+        fit = np.abs(ang - sep) <= self.tolerance_rad
+        fit &= near[0][:, None] != near[1][None, :]
+        return int(np.count_nonzero(fit))
+
     def _solve_tracking(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
         """Tracking: predict the catalogue stars in the prior's field, associate the
         detections inside the prior's gate, refine, and accept with ≥ 2 stars when a
@@ -144,6 +160,13 @@ class Tracking:
                                    "together, or inconsistent)", mode="tracking")
         p_hit = min(1.0, len(pred_xy) * math.pi * tight**2 / (cam.width * cam.height))
         p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
+        if len(det_i) == 2:
+            # two stars fix an attitude whatever they are: every pair of catalogue stars in
+            # the prior's cone around the two detections with their separation is an equally
+            # good answer (a neighbour taken for the star turns the roll)
+            n_fit = self._pairings_that_fit(b_use, xy[det_i], pred_xy, pred_idx, wide)
+            if n_fit > 1:
+                p_false = max(p_false, (n_fit - 1) / n_fit)
         matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
         cand = Candidate(
             q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,
