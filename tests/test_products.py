@@ -220,3 +220,16 @@ def test_cli_paths(tmp_path):
     assert main(["calibrate", str(tmp_path / "none.png"), "-o", str(tmp_path / "c.yaml"),
                  "--fov", "10"]) == 2
     assert not Path(tmp_path / "c.yaml").exists()
+
+
+@pytest.mark.opencv
+def test_solve_takes_a_fov_range(shared_dir, capsys):
+    frame = sorted((shared_dir / REAL).glob("*.tiff"))[2]
+    assert main(["solve", str(frame), "--fov", "5:40", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["ok"] and res["fov_x_deg"] == pytest.approx(11.42, abs=0.02)
+    assert len(res["matches"]) >= 20  # the catalogue thinned for 5°, not for the middle
+    assert main(["solve", str(frame), "--fov", "5:40", "--fov-error", "1"]) == 2
+    assert "drop --fov-error" in capsys.readouterr().err
+    with pytest.raises(SystemExit):  # argparse refuses LO > HI
+        main(["solve", str(frame), "--fov", "40:5"])

@@ -43,7 +43,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    help="image files (TIFF, PNG, JPEG) or folders of them")
     s.add_argument("--example", action="store_true",
                    help="render and solve the built-in synthetic example frame")
-    s.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
+    s.add_argument("--fov", type=_fov_arg, metavar="DEG|LO:HI",
+                   help="horizontal field of view, degrees: an estimate (with --fov-error) "
+                        "or a range LO:HI searched from its middle outwards")
     s.add_argument("--fov-error", type=float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
     s.add_argument("--camera", metavar="YAML",
@@ -79,7 +81,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                     help="image files or folders, one camera, same size")
     cb.add_argument("-o", "--output", required=True, metavar="YAML",
                     help="camera file to write (accepted by --camera)")
-    cb.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
+    cb.add_argument("--fov", type=_fov_arg, metavar="DEG|LO:HI",
+                    help="horizontal field of view, degrees: an estimate or a range LO:HI")
     cb.add_argument("--fov-error", type=float, default=None,
                     help="± uncertainty of --fov, degrees (default 5 %% of the FOV)")
     cb.add_argument("--camera", metavar="YAML", help="starting camera instead of --fov")
@@ -214,6 +217,29 @@ def cmd_detect(args: argparse.Namespace) -> int:
     return 0
 
 
+def _fov_arg(text: str) -> float | tuple[float, float]:
+    """``--fov``: one number (degrees), or a range ``LO:HI``."""
+    try:
+        if ":" in text:
+            lo, hi = (float(v) for v in text.split(":"))
+            if not 0 < lo <= hi < 179:
+                raise ValueError
+            return (lo, hi)
+        v = float(text)
+        if not 0 < v < 179:
+            raise ValueError
+        return v
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected degrees (e.g. 11.4) or a range LO:HI (e.g. 8:15), got {text!r}"
+        ) from None
+
+
+def _fov_nominal(fov: float | tuple[float, float]) -> float:
+    """The camera model's FOV for ``--fov``: the value, or a range's middle."""
+    return 0.5 * (fov[0] + fov[1]) if isinstance(fov, tuple) else fov
+
+
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm"}
 
 
@@ -264,7 +290,7 @@ class _Solvers:
                 raise ValueError(f"the camera file is for {c.width}×{c.height} images, this "
                                  f"one is {width}×{height}")
             return c
-        return starid.Camera.pinhole(width, height, self.args.fov)
+        return starid.Camera.pinhole(width, height, _fov_nominal(self.args.fov))
 
     def solver_for(self, camera):
         from adfusion import starid
@@ -274,8 +300,17 @@ class _Solvers:
         if key not in self._by_size:
             a = self.args
             spf = a.stars_per_fov if a.stars_per_fov is not None else DEFAULT_STARS_PER_FOV
-            cat = catalog_for_camera(self.catalog, camera, spf)
-            solver = starid.Solver(cat, camera, fov_error_deg=a.fov_error, method=a.method)
+            narrowest = camera  # a range thins for its narrowest field: depth for all
+            if isinstance(a.fov, tuple) and a.fov[0] < camera.fov_x_deg:
+                narrowest = starid.Camera.pinhole(camera.width, camera.height, a.fov[0])
+            cat = catalog_for_camera(self.catalog, narrowest, spf)
+            if isinstance(a.fov, tuple):
+                if a.fov_error:
+                    raise ValueError("--fov LO:HI is a range already: drop --fov-error")
+                kw = {"fov_range_deg": a.fov}
+            else:
+                kw = {"fov_error_deg": a.fov_error}
+            solver = starid.Solver(cat, camera, method=a.method, **kw)
             if a.method == "nstar":
                 solver.warm_up()  # the reported time is the solve's, not the kernels' loading
             self._by_size[key] = solver
@@ -469,14 +504,17 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 raise ValueError(f"{p.name} is {img.shape[1]}×{img.shape[0]}, the first frame "
                                  f"{shape[1]}×{shape[0]}: one camera, one image size")
             shape = img.shape[:2]
-            camera = starid.Camera.pinhole(shape[1], shape[0], args.fov)
+            camera = starid.Camera.pinhole(shape[1], shape[0], _fov_nominal(args.fov))
         dets.append(starid.detect(img, camera, sigma=args.sigma))
-    err = args.fov_error if args.fov_error is not None else 0.05 * camera.fov_x_deg
+    if isinstance(args.fov, tuple) and not args.camera:
+        fov_kw: dict = {"fov_range_deg": args.fov}
+    else:
+        fov_kw = {"fov_error_deg": args.fov_error if args.fov_error is not None
+                  else 0.05 * camera.fov_x_deg}
     deep = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
     ident = starid.Catalog.hipparcos(mag_limit=min(args.mag_limit, 6.5), epoch=epoch)
     t0 = time.perf_counter()
-    res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms,
-                           fov_error_deg=err)
+    res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms, **fov_kw)
     cam = res.camera
     write_camera_yaml(cam, args.output,
                       comment=f"adfusion calibrate: {res.n_frames} frames, "
