@@ -233,3 +233,26 @@ def test_solve_takes_a_fov_range(shared_dir, capsys):
     assert "drop --fov-error" in capsys.readouterr().err
     with pytest.raises(SystemExit):  # argparse refuses LO > HI
         main(["solve", str(frame), "--fov", "40:5"])
+
+
+@pytest.mark.opencv
+def test_cedar_frames_wcs_reproduces_our_projection(shared_dir, tmp_path, capsys):
+    """The cedar-solve set's 1280×960 frames (another camera, JPEG) as one batch: every
+    solved frame's .wcs puts astrometry.net's stars where our solution does. (The whole
+    set, five cameras, is a benchmark-sized run: one index per camera.)"""
+    folder = shared_dir / "data" / "real-images-cedar"
+    names = ["jan1_g90_e100ms", "jan1_g90_e50ms", "test2_g100_e50ms", "test_5mp_g100_e50ms"]
+    out = tmp_path / "out"
+    assert main(["solve", *(str(folder / f"{n}.jpg") for n in names), "--fov", "10.95",
+                 "--fov-error", "0.5", "-o", str(out), "--wcs"]) == 0
+    capsys.readouterr()
+    corr = json.loads((folder / "corr.json").read_text())
+    for name in names:
+        c = corr[name]
+        rec = json.loads((out / f"{name}.json").read_text())
+        cam = starid.Camera.from_dict(rec["camera"])
+        r = rot.radec_to_vector(np.radians(c["ra_deg"]), np.radians(c["dec_deg"]))
+        ours = cam.vectors_to_pixels(rot.rotate(np.array(rec["q_cam_icrs"]), r))
+        w = astropy_wcs.WCS(fits.getheader(out / f"{name}.wcs"))
+        theirs = np.stack(w.all_world2pix(c["ra_deg"], c["dec_deg"], 0), -1)
+        assert np.max(np.linalg.norm(theirs - ours, axis=1)) < 0.05, name
