@@ -203,3 +203,16 @@ def test_clipped_8bit_frames_identify_with_default_settings(shared_dir, hip65):
         sol, off = _solve(f, hip65, (0.75 * f.fov_x_deg, 1.25 * f.fov_x_deg), img)
         assert sol.ok, (f.name, sol.reason)
         assert np.median(off) <= 1.0, (f.name, np.median(off))
+
+
+@pytest.mark.opencv
+def test_cli_solve_with_a_fov_range(shared_dir, capsys):
+    import json
+
+    from adfusion.app.cli import main
+
+    f = next(f for f in corr_frames(shared_dir) if f.name == "orion2")
+    assert main(["solve", str(f.path), "--fov", "8:13", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["ok"] and res["fov_x_deg"] == pytest.approx(f.fov_x_deg, rel=0.01)
+    assert main(["solve", str(f.path), "--fov", "13:8"]) != 0

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -38,7 +39,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
     s.add_argument("--example", action="store_true",
                    help="render and solve the built-in synthetic example frame")
-    s.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
+    s.add_argument("--fov", help="horizontal field of view, degrees: an estimate (12) or a "
+                                 "range LO:HI (8:16; the camera is then fitted)")
     s.add_argument("--fov-error", type=float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
     s.add_argument("--mag-limit", type=float, default=6.5,
@@ -170,6 +172,26 @@ def cmd_detect(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_fov(text: str) -> tuple[float, float]:
+    """``--fov``: one value (degrees) or a range ``LO:HI``; (lo, hi) with lo = hi for one.
+
+    >>> parse_fov("12"), parse_fov("8:16")
+    ((12.0, 12.0), (8.0, 16.0))
+    """
+    parts = str(text).split(":")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise ValueError(f"--fov must be degrees (12) or a range LO:HI (8:16), got {text!r}"
+                         ) from None
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) and 0 < v < 179 for v in vals):
+        raise ValueError(f"--fov must be degrees in (0, 179) or LO:HI, got {text!r}")
+    lo, hi = (vals[0], vals[0]) if len(vals) == 1 else (vals[0], vals[1])
+    if lo > hi:
+        raise ValueError(f"--fov LO:HI needs LO ≤ HI, got {text!r}")
+    return lo, hi
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
@@ -191,12 +213,19 @@ def cmd_solve(args: argparse.Namespace) -> int:
             raise ValueError("--fov (horizontal field of view estimate, degrees) is required")
         image = read_image(args.image)
         h, w = image.shape[:2]
-        camera = starid.Camera.pinhole(w, h, args.fov)
+        fov_range = parse_fov(args.fov)
+        camera = starid.Camera.pinhole(w, h, math.sqrt(fov_range[0] * fov_range[1]))
     t0 = time.perf_counter()
     det = starid.detect(image, camera, sigma=args.sigma)
     t_detect = time.perf_counter() - t0
     cat = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
-    solver = starid.Solver(cat, camera, fov_error_deg=args.fov_error, method=args.method)
+    fov_kw = {}
+    if not args.example and fov_range[0] != fov_range[1]:
+        if args.fov_error:
+            raise ValueError("give --fov LO:HI or --fov-error, not both")
+        fov_kw = {"fov_range_deg": fov_range}
+    solver = starid.Solver(cat, camera, fov_error_deg=args.fov_error, method=args.method,
+                           **fov_kw)
     if args.method == "nstar":
         solver.warm_up()  # the reported time is the solve's, not the compiled code's loading
     sol = solver.solve(det)
