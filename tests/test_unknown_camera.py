@@ -141,3 +141,29 @@ def test_two_star_tracking_counts_every_pairing_in_the_prior_cone():
     prior = starid.Prior(rot.multiply(rot.exp_map([0, 0, 0.3 * roll]), q), 0.3)
     sol = starid.Solver(alone, cam, cache=False).solve(np.array([a, b]), prior)
     assert sol.ok and np.degrees(rot.angle_between(sol.q_cam_icrs, q)) < 0.01
+
+
+def test_non_square_pixels_in_the_search_and_the_fit(cat):
+    """Digitised video: fy = 0.9 fx. With the nominal camera's aspect (within a few per cent)
+    and its FOV only as a range, the search identifies and the fit returns both focal
+    lengths."""
+    K = np.array([[1800.0, 0, 383.5], [0, 1620.0, 287.5], [0, 0, 1]])
+    true = starid.Camera(K, np.zeros(5), 768, 576)
+    fov_y = 2 * np.degrees(np.arctan(288 / 1620.0 * 1.02))  # the aspect 2 % off
+    nominal = starid.Camera.pinhole(768, 576, true.fov_x_deg * 1.1, fov_y_deg=fov_y * 1.1)
+    q = rot.q_cam_icrs_from_radec_roll(*np.radians([210.0, 40.0, 75.0]))
+    xy, idx = _frame(cat, true, q, 0.2, seed=4)
+    assert len(xy) >= 12
+    solver = starid.Solver(cat, nominal, fov_range_deg=(0.8 * nominal.fov_x_deg,
+                                                        1.2 * nominal.fov_x_deg),
+                           fit_camera="full")
+    sol = solver.solve(xy)
+    assert sol.ok, sol.reason
+    assert {h for _, h in sol.matches} <= set(cat.ids[idx].tolist())
+    assert sol.camera.K[0, 0] == pytest.approx(1800.0, rel=5e-3)
+    assert sol.camera.K[1, 1] / sol.camera.K[0, 0] == pytest.approx(0.9, abs=5e-3)
+    # the principal point trades against the pointing: compare the pixel ↔ sky maps
+    grid = np.stack(np.meshgrid(np.linspace(0, 767, 5), np.linspace(0, 575, 4)), -1)
+    sky = rot.rotate(rot.inverse(q), true.pixels_to_vectors(grid.reshape(-1, 2)))
+    ours = sol.camera.vectors_to_pixels(rot.rotate(sol.q_cam_icrs, sky))
+    assert np.abs(ours - grid.reshape(-1, 2)).max() < 1.0
