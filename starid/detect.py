@@ -851,10 +851,10 @@ def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
                   ) -> Detections:
     """Detections on structured foreground after the others (order within each group
     kept). Foreground is where the local noise exceeds ``factor`` × the frame's median
-    *and* blobs crowd: the 3×3 blocks around hold more than twice the frame's mean number
-    of blobs (accepted or rejected) — a lit tree or a roof edge, not a glow (which raises the
-    noise but not the number of things in it) nor a rich star field (which crowds on clean
-    sky)."""
+    *and* blobs crowd: the 3×3 blocks around hold more than twice (and at least 3) the
+    mean number of blobs (accepted or rejected) of the clean sky's blocks — a lit tree or a
+    roof edge, not a glow (which raises the noise but not the number of things in it) nor
+    a rich star field (which crowds on clean sky)."""
     gh, bh = _block_layout(det.shape[0], block)
     gw, bw = _block_layout(det.shape[1], block)
 
@@ -864,7 +864,8 @@ def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
         return by, bx
 
     by, bx = blocks(det.xy)
-    noisy = noise[by, bx] > factor * float(np.median(noise))
+    noisy_block = noise > factor * float(np.median(noise))
+    noisy = noisy_block[by, bx]
     if not noisy.any():
         return det
     every = det.xy
@@ -873,7 +874,9 @@ def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
     count = np.zeros((gh, gw), np.float32)
     np.add.at(count, blocks(every), 1.0)
     crowd = cv2.boxFilter(count, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
-    mean = 9.0 * len(every) / count.size
+    # the crowding of clean sky is the reference (the foreground may fill much of the frame)
+    sky = count[~noisy_block] if (~noisy_block).any() else count
+    mean = 9.0 * float(sky.mean())
     clutter = noisy & (crowd[by, bx] > max(2.0 * mean, 3.0))
     if not clutter.any() or clutter.all():
         return det

@@ -24,9 +24,12 @@ from adfusion.starid.solution import Candidate, Solution
 from adfusion.starid.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
 
-__all__ = ["EVIDENCE_RATIO", "SHARED_FRACTION", "LostInSpace", "PairWindows", "Search",
-           "resolve_by_evidence"]
+__all__ = ["EVIDENCE_RATIO", "MAX_BUDGET_SCALES", "SHARED_FRACTION", "LostInSpace",
+           "PairWindows", "Search", "resolve_by_evidence"]
 
+
+#: focal guesses the trial budget grows with (beyond, a frame gets fewer patterns per guess)
+MAX_BUDGET_SCALES = 50
 
 #: the best candidate wins over the others when its p_false is this many times smaller
 EVIDENCE_RATIO = 1e6
@@ -72,6 +75,12 @@ def resolve_by_evidence(cands: list[Candidate]) -> tuple[Candidate | None, str]:
 class LostInSpace:
     """The lost-in-space half of :class:`starid.Solver` (a mixin: it uses the solver's
     index, settings and verification)."""
+
+    def _trial_budget(self, n_scales: int) -> int:
+        """(pattern, focal guess) trials a frame may take: ``max_patterns`` per guess, for
+        at most :data:`MAX_BUDGET_SCALES` guesses — a wide FOV range (5°–40°: 200 guesses)
+        must not make a frame without an answer cost 200× a known camera's."""
+        return self.max_patterns * min(n_scales, MAX_BUDGET_SCALES)
 
     def _focal_scales(self) -> list[float]:
         """Focal-length multipliers covering the FOV uncertainty (1.0 first)."""
@@ -233,7 +242,7 @@ class LostInSpace:
                                       for f in ("angles", "tol", "cos_min", "cos_max")]
         while True:
             sel, rows, q, wp, wi = kernels.search(
-                self._ix, state, pats, plen, self.max_patterns * n_cams, no_match,
+                self._ix, state, pats, plen, self._trial_budget(n_cams), no_match,
                 n_no_match, *stack, radius, floor, self.p_false_max, self.work_budget)
             if len(wp):
                 run.weak_rows.append((wp, wi, paths))
@@ -258,7 +267,7 @@ class LostInSpace:
                       tables: list[PairWindows], run: Search) -> Iterator[tuple]:
         """:meth:`_trials_compiled` in Python, for the matchers kept in numpy (Renken's
         faithful loops, declination bands): the same trials, counts and values."""
-        budget = self.max_patterns * len(cams)
+        budget = self._trial_budget(len(cams))
         # detection sets (bit masks) that matched nothing, per focal guess: a pattern
         # holding one of them matches nothing either (every window of the smaller set is
         # one of its own), so it is counted as tried but not matched — the swaps and

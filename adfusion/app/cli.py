@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -43,9 +44,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    help="image files (TIFF, PNG, JPEG) or folders of them")
     s.add_argument("--example", action="store_true",
                    help="render and solve the built-in synthetic example frame")
-    s.add_argument("--fov", type=_fov_arg, metavar="DEG|LO:HI",
-                   help="horizontal field of view, degrees: an estimate (with --fov-error) "
-                        "or a range LO:HI searched from its middle outwards")
+    s.add_argument("--fov", metavar="DEG|LO:HI",
+                   help="horizontal field of view, degrees: an estimate (12, with "
+                        "--fov-error) or a range LO:HI (8:16; the camera is then fitted)")
     s.add_argument("--fov-error", type=float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
     s.add_argument("--camera", metavar="YAML",
@@ -81,7 +82,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                     help="image files or folders, one camera, same size")
     cb.add_argument("-o", "--output", required=True, metavar="YAML",
                     help="camera file to write (accepted by --camera)")
-    cb.add_argument("--fov", type=_fov_arg, metavar="DEG|LO:HI",
+    cb.add_argument("--fov", metavar="DEG|LO:HI",
                     help="horizontal field of view, degrees: an estimate or a range LO:HI")
     cb.add_argument("--fov-error", type=float, default=None,
                     help="± uncertainty of --fov, degrees (default 5 %% of the FOV)")
@@ -217,27 +218,29 @@ def cmd_detect(args: argparse.Namespace) -> int:
     return 0
 
 
-def _fov_arg(text: str) -> float | tuple[float, float]:
-    """``--fov``: one number (degrees), or a range ``LO:HI``."""
+def parse_fov(text: str) -> tuple[float, float]:
+    """``--fov``: one value (degrees) or a range ``LO:HI``; (lo, hi) with lo = hi for one.
+
+    >>> parse_fov("12"), parse_fov("8:16")
+    ((12.0, 12.0), (8.0, 16.0))
+    """
+    parts = str(text).split(":")
     try:
-        if ":" in text:
-            lo, hi = (float(v) for v in text.split(":"))
-            if not 0 < lo <= hi < 179:
-                raise ValueError
-            return (lo, hi)
-        v = float(text)
-        if not 0 < v < 179:
-            raise ValueError
-        return v
+        vals = [float(p) for p in parts]
     except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected degrees (e.g. 11.4) or a range LO:HI (e.g. 8:15), got {text!r}"
-        ) from None
+        raise ValueError(f"--fov must be degrees (12) or a range LO:HI (8:16), got {text!r}"
+                         ) from None
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) and 0 < v < 179 for v in vals):
+        raise ValueError(f"--fov must be degrees in (0, 179) or LO:HI, got {text!r}")
+    lo, hi = (vals[0], vals[0]) if len(vals) == 1 else (vals[0], vals[1])
+    if lo > hi:
+        raise ValueError(f"--fov LO:HI needs LO ≤ HI, got {text!r}")
+    return lo, hi
 
 
-def _fov_nominal(fov: float | tuple[float, float]) -> float:
-    """The camera model's FOV for ``--fov``: the value, or a range's middle."""
-    return 0.5 * (fov[0] + fov[1]) if isinstance(fov, tuple) else fov
+def _fov_nominal(fov: tuple[float, float]) -> float:
+    """The camera model's FOV for ``--fov``: the value, or a range's geometric middle."""
+    return math.sqrt(fov[0] * fov[1])
 
 
 _IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm"}
@@ -272,6 +275,7 @@ class _Solvers:
         self.epoch = args.epoch if args.epoch is not None else _julian_year_now()
         self.catalog = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=self.epoch)
         self.camera_file = None
+        self.fov = parse_fov(args.fov) if args.fov is not None else None
         if getattr(args, "camera", None):
             from adfusion.starid.camera_file import read_camera_yaml
 
@@ -290,7 +294,7 @@ class _Solvers:
                 raise ValueError(f"the camera file is for {c.width}×{c.height} images, this "
                                  f"one is {width}×{height}")
             return c
-        return starid.Camera.pinhole(width, height, _fov_nominal(self.args.fov))
+        return starid.Camera.pinhole(width, height, _fov_nominal(self.fov))
 
     def solver_for(self, camera):
         from adfusion import starid
@@ -300,14 +304,15 @@ class _Solvers:
         if key not in self._by_size:
             a = self.args
             spf = a.stars_per_fov if a.stars_per_fov is not None else DEFAULT_STARS_PER_FOV
+            ranged = self.camera_file is None and self.fov[0] != self.fov[1]
             narrowest = camera  # a range thins for its narrowest field: depth for all
-            if isinstance(a.fov, tuple) and a.fov[0] < camera.fov_x_deg:
-                narrowest = starid.Camera.pinhole(camera.width, camera.height, a.fov[0])
+            if ranged and self.fov[0] < camera.fov_x_deg:
+                narrowest = starid.Camera.pinhole(camera.width, camera.height, self.fov[0])
             cat = catalog_for_camera(self.catalog, narrowest, spf)
-            if isinstance(a.fov, tuple):
+            if ranged:
                 if a.fov_error:
-                    raise ValueError("--fov LO:HI is a range already: drop --fov-error")
-                kw = {"fov_range_deg": a.fov}
+                    raise ValueError("give --fov LO:HI or --fov-error, not both")
+                kw = {"fov_range_deg": self.fov}
             else:
                 kw = {"fov_error_deg": a.fov_error}
             solver = starid.Solver(cat, camera, method=a.method, **kw)
@@ -340,7 +345,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
         ex = examples.example_frame()
         print(f"example: {ex.description}", file=sys.stderr)
-        args.camera, args.fov = None, ex.camera.fov_x_deg
+        args.camera, args.fov = None, str(ex.camera.fov_x_deg)
         frames = [("example", lambda: ex.image)]
         truth_q = ex.q_cam_icrs
     else:
@@ -490,6 +495,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     elif args.fov is None:
         raise ValueError("--fov (horizontal field of view estimate, degrees) or --camera "
                          "(a starting camera YAML) is required")
+    fov = parse_fov(args.fov) if args.fov is not None else None
     terms = "auto" if args.terms.strip() == "auto" else tuple(
         t.strip() for t in args.terms.split(",") if t.strip())
     epoch = args.epoch if args.epoch is not None else _julian_year_now()
@@ -504,10 +510,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                 raise ValueError(f"{p.name} is {img.shape[1]}×{img.shape[0]}, the first frame "
                                  f"{shape[1]}×{shape[0]}: one camera, one image size")
             shape = img.shape[:2]
-            camera = starid.Camera.pinhole(shape[1], shape[0], _fov_nominal(args.fov))
+            camera = starid.Camera.pinhole(shape[1], shape[0], _fov_nominal(fov))
         dets.append(starid.detect(img, camera, sigma=args.sigma))
-    if isinstance(args.fov, tuple) and not args.camera:
-        fov_kw: dict = {"fov_range_deg": args.fov}
+    if fov is not None and fov[0] != fov[1] and not args.camera:
+        fov_kw: dict = {"fov_range_deg": fov}
     else:
         fov_kw = {"fov_error_deg": args.fov_error if args.fov_error is not None
                   else 0.05 * camera.fov_x_deg}
