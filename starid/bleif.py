@@ -60,6 +60,9 @@ from starid.star_angles import q_cam_icrs_from_star_angles, star_angles_from_q_c
 
 __all__ = [
     "KX_DEG",
+    "BleifParams",
+    "detection_selections",
+    "selection_of",
     "KY_DEG",
     "T_PIX",
     "BleifCandidate",
@@ -383,16 +386,17 @@ def _with_attitude(pc: PatternCatalog, p: int, m: _Marked, found: tuple[NDArray,
     b, r = m.vectors[used], pc.vectors[star_index[used]]
     q = cov = None
     problem = ""
-    if attitude == "wahba":
-        sigma = click_sigma_px * cam.pixel_scale_rad
-        try:
-            w = wahba(b, r, sigma)
-            dof = 2 * len(used) - 3
+    # the Wahba fit of the assigned stars: the attitude (modern) and, for both modes, the
+    # covariance — inflated when the residuals say the marks are worse than assumed
+    try:
+        w = wahba(b, r, click_sigma_px * cam.pixel_scale_rad)
+        dof = 2 * len(used) - 3
+        cov = w.covariance * max(1.0, w.loss / dof if dof > 0 else 1.0)
+        if attitude == "wahba":
             q = w.q_cam_icrs
-            cov = w.covariance * max(1.0, w.loss / dof if dof > 0 else 1.0)
-        except ValueError as e:
-            problem = f"wahba: {e}"
-    else:
+    except ValueError as e:
+        problem = f"wahba: {e}"
+    if attitude == "thesis":
         # the thesis uses the first three stars of the sorted list: reference, nearest two
         first = [0, *[int(m.order[j]) for j in range(len(pos)) if pos[j] >= 0][:2]]
         try:
@@ -556,3 +560,47 @@ def overlay(cand: BleifCandidate, pc: PatternCatalog, cam: Camera,
         false_blocks = np.zeros(0, dtype=np.int64)
     return Overlay(xy, pc.ids[idx], mag, radius, is_ref, is_marked, occupied,
                    false_blocks.astype(np.int64))
+
+
+@dataclass(frozen=True)
+class BleifParams:
+    """Settings of ``Solver(method="bleif")``: the brightest ``n_marked`` detections play
+    the marked stars, up to ``n_refs`` of them (nearest the centre first) the reference in
+    turn, tolerant mode with ``k_miss`` misses (detections include false objects, which
+    the strict thesis mode cannot survive); ``t_pix`` as Eq. 4.14."""
+
+    n_marked: int = 8
+    n_refs: int = 3
+    k_miss: int = 2
+    t_pix: float = T_PIX
+    n_stars: int = 5000
+
+
+def detection_selections(patterns: PatternCatalog, xy: ArrayLike, camera: Camera,
+                         params: BleifParams = BleifParams(),
+                         ) -> Iterator[tuple[int, list[BleifCandidate], int]]:
+    """For a solver: per (misses allowed, reference) tried, (reference detection, its
+    candidates, patterns examined so far). The detections are ``xy`` brightest first; a candidate's
+    ``star_index`` is per marked star, with the marked stars being
+    ``selection_of(ref, len(xy), params)``."""
+    pts = np.asarray(xy, dtype=np.float64)
+    n = min(params.n_marked, len(pts))
+    r = np.hypot(*(pts[:n] - camera.K[:2, 2]).T)
+    refs = np.argsort(r, kind="stable")[: params.n_refs].tolist()
+    examined = 0
+    # strict first (fast, and enough for a clean selection), then more misses allowed
+    for k_miss in range(min(params.k_miss, n - 3) + 1):
+        for ref in refs:
+            sel = selection_of(ref, len(pts), params)
+            counters = MatchCounters()
+            cands = list(find_matches(patterns, pts[sel], camera, k_miss=k_miss,
+                                      t_pix=params.t_pix, counters=counters))
+            examined += counters.patterns
+            yield ref, cands, examined
+
+
+def selection_of(ref: int, n_det: int, params: BleifParams = BleifParams()) -> list[int]:
+    """The detections marked when detection ``ref`` is the reference: it, then the other
+    brightest ``n_marked − 1``."""
+    n = min(params.n_marked, n_det)
+    return [ref, *[k for k in range(n) if k != ref]]

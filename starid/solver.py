@@ -240,15 +240,18 @@ class Solver:
         cache: bool = True,
         method: str = "nstar",
         triad_params=None,
+        bleif_params=None,
         max_tracking_cone_deg: float = 3.0,
         max_fix_sigma_px: float = 5.0,
         p_false_max_tracking: float = 1e-4,
         whole_streak_px: float = 20.0,
     ) -> None:
-        if method not in ("nstar", "triad"):
-            raise ValueError(f"method must be 'nstar' or 'triad', got {method!r}")
+        if method not in ("nstar", "triad", "bleif"):
+            raise ValueError(f"method must be 'nstar', 'triad' or 'bleif', got {method!r}")
         self.method = method
         self.triad_params = triad_params
+        self.bleif_params = bleif_params
+        self._bleif_patterns = None
         self.max_tracking_cone_deg = float(max_tracking_cone_deg)
         self.max_fix_sigma_px = float(max_fix_sigma_px)
         self.p_false_max_tracking = float(p_false_max_tracking)
@@ -333,8 +336,8 @@ class Solver:
                 return Solution(False, fallback_note + "too few detections for lost-in-space",
                                 mode="tracking", time_s=time.perf_counter() - t0,
                                 n_detections=len(xy))
-        if self.method == "triad":
-            sol = self._solve_triad(xy)
+        if self.method in ("triad", "bleif"):
+            sol = self._solve_triad(xy) if self.method == "triad" else self._solve_bleif(xy)
             return _replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                             patterns_tried=1)
         cams = [self.camera.scaled(k) if k != 1.0 else self.camera
@@ -825,6 +828,48 @@ class Solver:
         if cand is None or cand.p_false > self.p_false_max:
             return Solution(False, "triad: match failed full verification", path="triad")
         return self._solution(cand, 1, "triad", [cand])
+
+    def _solve_bleif(self, xy: NDArray) -> Solution:
+        """Bleif's MusterPr matcher (:mod:`starid.bleif`) on the brightest detections,
+        each candidate through the same verification as a triad match."""
+        from starid.bleif import BleifParams, detection_selections, selection_of
+        from starid.bleif_catalog import PatternCatalog
+
+        params = self.bleif_params or BleifParams()
+        if self._bleif_patterns is None:
+            self._bleif_patterns = PatternCatalog.build(self.catalog, params.n_stars)
+        pc = self._bleif_patterns
+        pos = {int(h): k for k, h in enumerate(self.ids)}
+        b_all = self.camera.pixels_to_vectors(xy)
+        tol = np.radians(2.0 * np.degrees(1.0 / self.camera.K[0, 0]) * params.t_pix)
+        n_fit = 0
+        for ref, cands, examined in detection_selections(pc, xy, self.camera, params):
+            marked = np.array(selection_of(ref, len(xy), params))
+            found = []
+            for c in cands:
+                keep = c.star_index >= 0
+                sel, assign = marked[keep], np.array([pos[int(pc.ids[i])]
+                                                      for i in c.star_index[keep]])
+                ang = np.arccos(np.clip(b_all[sel] @ b_all[sel].T, -1, 1))
+                np.fill_diagonal(ang, 0.0)
+                chance = (ang, np.full(ang.shape, tol), True)
+                quick = self._quick(b_all, None, sel, assign[None], self.camera,
+                                    max(1, examined), chance)[0]
+                if quick is None or quick[0] > self.p_false_max:
+                    continue
+                v = self._verify(xy, self.camera, sel, assign, quick, b_all)
+                if v is not None and v.p_false <= self.p_false_max:
+                    found.append(v)
+            n_fit += len(cands)
+            found = _distinct(found, 3 * self.tolerance_rad)
+            if len(found) == 1:
+                return self._solution(found[0], n_fit, f"bleif ref {ref}", found)
+            if len(found) > 1:
+                return Solution(False, f"ambiguous: {len(found)} distinct attitudes verified",
+                                matching_counter=n_fit, path=f"bleif ref {ref}",
+                                candidates=sorted(found, key=lambda c: c.p_false))
+        return Solution(False, f"bleif: no verified match ({n_fit} pattern candidates)",
+                        matching_counter=n_fit, path="bleif")
 
     def _match_radius_px(self) -> float:
         return max(_3_SQRT2 * self.centroid_sigma_px, 1.5)
