@@ -12,7 +12,8 @@ magnetometer direction update:
   with the field direction in the accelerometer slot and its reference set to the current
   ICRS field direction each step (it has no other way to take a moving reference);
 * ``filterpy_ekf`` — a plain ``filterpy.kalman.ExtendedKalmanFilter`` with the same 6-state
-  error model (Φ and Q from :mod:`adfusion.mekf`, the same quaternion arithmetic and reset),
+  error model (Φ and Q from :mod:`adfusion.estimation.mekf`, the same quaternion arithmetic
+  and reset),
   so the difference to ``mekf`` is the Kalman machinery alone.
 
 Timing rounds are interleaved (each round runs every filter over the whole data, in rotating
@@ -25,7 +26,7 @@ of each filter on the data.
 Replay throughput (:func:`replay_throughput`, ``--replay-duration S``; 0 skips it): an
 OEDIPUS-C-like flight (``sensors.scenarios.oedipus``, 30 fps, 200 Hz gyro, magnetometer)
 simulated into an MCAP log — rendered intensified frames, and centroid-only — then replayed
-through ``adfusion.pipeline.replay`` (detection, identification, MEKF, MCAP writing):
+through ``adfusion.app.pipeline.replay`` (detection, identification, MEKF, MCAP writing):
 frames per second end to end and the attitude error against the log's truth.
 
 Usage (from the repository root)::
@@ -44,8 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import statistics
 import sys
 import time
@@ -56,18 +55,12 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.mekf import (
-    MEKF,
-    _qexp,
-    _qmul,
-    _qnormalize,
-    _qrotate,
-    _tangent_basis,
-    process_noise,
-    transition_matrix,
-)
-from adfusion.ukf import UKF
-from starid import rotations as rot
+from adfusion.starid import rotations as rot
+
+from adfusion.bench.machine import machine_info
+from adfusion.estimation.common import tangent_basis
+from adfusion.estimation.mekf import MEKF, process_noise, transition_matrix
+from adfusion.estimation.ukf import UKF
 
 try:
     from ahrs.filters import EKF as AhrsEKF
@@ -155,16 +148,17 @@ def _filterpy(d: dict[str, np.ndarray]) -> tuple[Step, Callable[[], np.ndarray]]
     def step(k: int) -> None:
         w = gyro[k] - st["b"]
         tx, ty, tz = (w * dt).tolist()
-        st["q"] = _qnormalize(_qmul(_qexp(-tx, -ty, -tz), st["q"]))
+        st["q"] = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(-tx, -ty, -tz), st["q"]))
         ekf.F = transition_matrix(w, dt)
         ekf.predict()
-        e1, e2 = _tangent_basis(*_qrotate(st["q"], tuple(ref[k].tolist())))
+        e1, e2 = tangent_basis(*rot.rotate_floats(st["q"], tuple(ref[k].tolist())))
         h = np.zeros((2, 6))
         h[0, :3], h[1, :3] = e2, (-e1[0], -e1[1], -e1[2])
         z = np.array([np.dot(e1, meas[k]), np.dot(e2, meas[k])])
         ekf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ x, R=r2)
         dx = ekf.x.tolist()
-        st["q"] = _qnormalize(_qmul(_qexp(dx[0], dx[1], dx[2]), st["q"]))
+        step = rot.exp_map_floats(dx[0], dx[1], dx[2])
+        st["q"] = rot.normalize_floats(rot.hamilton(step, st["q"]))
         st["b"] = st["b"] + ekf.x[3:]
         ekf.x[:] = 0.0  # the reset: error state back to zero
 
@@ -222,9 +216,7 @@ def run(rounds: int = 3, steps: int = ORBIT_STEPS, seed: int = 1) -> dict[str, A
         "final_err_deg": {n: float(e[-1]) for n, e in err_deg.items()},
         "burn_in_steps": burn,
         "skipped": [] if AhrsEKF is not None else ["ahrs_ekf (ahrs not importable)"],
-        "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                    "python": platform.python_version(), "numpy": np.__version__,
-                    "cpus": os.cpu_count(), "loadavg": list(os.getloadavg())},
+        "machine": machine_info(),
     }  # fmt: skip
 
 
@@ -233,8 +225,9 @@ def replay_throughput(duration_s: float = 20.0, seed: int = 0) -> dict[str, Any]
     frames/s end to end, identified frames, attitude error vs truth (deg)."""
     import tempfile
 
-    from adfusion.pipeline import replay, simulate
-    from sensors.scenarios import oedipus
+    from adfusion.sensors.scenarios import oedipus
+
+    from adfusion.app.pipeline import replay, simulate
 
     out: dict[str, Any] = {"scenario": f"oedipus, {duration_s:g} s, seed {seed}"}
     with tempfile.TemporaryDirectory(prefix="adfusion-bench-") as tmp:

@@ -30,7 +30,7 @@ Event kinds and their ``data`` (NumPy arrays, SI units, DESIGN.md conventions):
   ``star_index`` (into ``Scenario.catalog``), ``hip`` (catalogue ids), ``q_cam_icrs``.
 
 Example:
-    >>> from sensors.scenarios import oedipus
+    >>> from adfusion.sensors.scenarios import oedipus
     >>> sc = oedipus(duration_s=0.1, render=False)
     >>> sc.camera.width, sc.camera.height, round(sc.camera.fov_y_deg, 2)
     (512, 480, 20.33)
@@ -49,15 +49,16 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
+from adfusion.sensors.dynamics import Trajectory, simulate_rate_profile, simulate_rigid_body
+from adfusion.sensors.gyro import GyroModel
+from adfusion.sensors.magnetometer import MagnetometerModel, field_icrs_nT, r_icrs_ecef
+from adfusion.sensors.render import Intensifier, SensorModel, Tether, render_frame
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
 from numpy.typing import ArrayLike, NDArray
 
-from sensors.dynamics import Trajectory, simulate_rate_profile, simulate_rigid_body
-from sensors.gyro import GyroModel
-from sensors.magnetometer import MagnetometerModel, field_icrs_nT, r_icrs_ecef
-from sensors.render import Intensifier, SensorModel, Tether, render_frame
-from starid import rotations as rot
-from starid.camera import Camera
-from starid.catalog import Catalog
+from adfusion.plain import to_jsonable
 
 __all__ = [
     "KINDS",
@@ -137,20 +138,6 @@ def _seed_for(seed: int, stream: int, index: int = 0) -> int:
     return int(ss.generate_state(1)[0])
 
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, datetime):
-        return x.isoformat()
-    return x
-
-
 class Scenario:
     """A deterministic multi-sensor simulation (use :func:`oedipus` or :func:`leo`).
 
@@ -212,7 +199,7 @@ class Scenario:
         self.t_gyro, self._ns_gyro = _sample_times(duration_s, gyro_hz)
         self.t_mag, self._ns_mag = _sample_times(duration_s, mag_hz)
         self.t_frame, self._ns_frame = _sample_times(duration_s, fps)
-        self.config: dict[str, Any] = _jsonable({
+        self.config: dict[str, Any] = to_jsonable({
             "scenario": name,
             "seed": self.seed,
             "duration_s": self.duration_s,

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adfusion import bench_starid as bs
-from adfusion import bench_sweep
-from adfusion.cli import main as cli_main
+from adfusion.app.cli import main as cli_main
+from adfusion.bench import starid as bs
+from adfusion.bench import sweep as bench_sweep
 
 
 def _solvers() -> list[str]:
@@ -86,19 +86,20 @@ def test_error_bound_math(doc: dict) -> None:
 def test_streaked_frame_scored_along_the_exposure() -> None:
     """A fix equal to the attitude at the end of the exposure (a fragment's instant) is the
     right identification: correct, but counted as off mid-exposure."""
-    import starid
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
-    cat = bs._catalog(5.0, 2025.0)
+    from adfusion import starid
+
+    cat = bs.load_catalog(5.0, 2025.0)
     cam = starid.Camera.pinhole(512, 384, fov_x_deg=15.0)
     f = bs.render_frame_for(cat, cam, bs.Condition("r", rate_deg_s=5.0), seed=0, index=2)
     q_end = rot.multiply(rot.exp_map(-f.omega_cam_rad_s * f.exposure_s / 2), f.q_cam_icrs)
-    t = bs.score(f, bs._Outcome(True, q_end, 0.001), cam, 5.0)
+    t = bs.score(f, bs.Outcome(True, q_end, 0.001), cam, 5.0)
     assert t.verdict == "correct" and t.error_px > 5.0 and t.error_path_px < 0.5
     a = bs.aggregate([t])
     assert a["n_off_mid_exposure"] == 1 and a["n_wrong"] == 0
     q_far = rot.multiply(rot.exp_map([0.0, 0.0, 0.05]), f.q_cam_icrs)  # 2.9° of roll
-    assert bs.score(f, bs._Outcome(True, q_far, 0.001), cam, 5.0).verdict == "wrong"
+    assert bs.score(f, bs.Outcome(True, q_far, 0.001), cam, 5.0).verdict == "wrong"
 
 
 def test_tables_and_plots(doc: dict, tmp_path: Path) -> None:

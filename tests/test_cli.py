@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from adfusion.cli import main
+from adfusion.app.cli import main
 
 
 def test_help_lists_the_commands(capsys):
@@ -15,6 +15,19 @@ def test_help_lists_the_commands(capsys):
     out = capsys.readouterr().out
     for cmd in ("detect", "solve", "simulate", "replay", "report", "demo", "bench", "catalog"):
         assert cmd in out
+
+
+def test_help_imports_no_numpy():
+    """``adfusion --help`` in a fresh interpreter loads neither numpy nor OpenCV."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom adfusion.app.cli import main\n"
+            "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('numpy', 'cv2', 'scipy') if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=60, check=True)
+    assert p.stdout.strip().splitlines()[-1] == "[]"
 
 
 def test_catalog_prints_renken_table(capsys):

@@ -29,7 +29,7 @@ negative because of the −I coupling); at 180°/s and 30 Hz the rotation terms 
 
 Propagation integrates the quaternion exactly for the constant estimated rate,
 ``q ← Exp(−ω̂Δt) ⊗ q``; it needs no measurement (a gyro sample passed in is ignored, so the
-:class:`~adfusion.estimator.Estimator` can drive this filter like the MEKF). Measurement
+:class:`~adfusion.estimation.estimator.Estimator` can drive this filter like the MEKF). Measurement
 updates (attitude fixes, star or magnetometer directions, their camera-frame variants), the
 NIS gate, the Joseph form, the iterated/left-Jacobian handling of large corrections and the
 reset are the MEKF's, inherited unchanged: the measurements do not depend on the second
@@ -41,7 +41,7 @@ code written against the MEKF interface runs); the estimated rate is
 
 Example:
     >>> import numpy as np
-    >>> from adfusion.ratefilter import RateMEKF
+    >>> from adfusion.estimation.ratefilter import RateMEKF
     >>> f = RateMEKF([1.0, 0.0, 0.0, 0.0], sigma_attitude_rad=1e-3, sigma_rate_rad_s=1.0,
     ...              sigma_rate_walk_rad_s_sqrt_s=1e-3)
     >>> cov = np.eye(3) * 1e-8
@@ -67,7 +67,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.mekf import MEKF, _phi_rows, _qexp, _qmul, _qnormalize, _series_coeffs, _symmetrize
+from adfusion.estimation.common import phi_rows, series_coeffs, symmetrize
+from adfusion.estimation.mekf import MEKF
+from adfusion.starid import rotations as rot
 
 __all__ = ["RateMEKF", "rate_process_noise", "rate_transition_matrix"]
 
@@ -96,7 +98,8 @@ def _skew(x: float, y: float, z: float) -> Array:
 def rate_transition_matrix(omega_rad_s: ArrayLike, dt: float) -> Array:
     """Discrete error-state transition Φ (6×6) of [δθ, δω] over ``dt`` at constant rate ω̂.
 
-    The MEKF's closed form (:func:`adfusion.mekf.transition_matrix`) with Φ₁₂ negated: the
+    The MEKF's closed form (:func:`adfusion.estimation.mekf.transition_matrix`) with Φ₁₂
+    negated: the
     rate error enters the attitude error with −I (see the module docstring).
 
     >>> phi = rate_transition_matrix([0.0, 0.0, 0.0], 2.0)
@@ -109,7 +112,7 @@ def rate_transition_matrix(omega_rad_s: ArrayLike, dt: float) -> Array:
     dt = float(dt)
     tx, ty, tz = (float(v) * dt for v in w)
     phi = np.eye(6)
-    phi[:3] = _phi_rows(tx, ty, tz, dt)
+    phi[:3] = phi_rows(tx, ty, tz, dt)
     phi[:3, 3:] *= -1.0
     return phi
 
@@ -131,7 +134,7 @@ def rate_process_noise(omega_rad_s: ArrayLike, dt: float, sigma_rate_walk: float
     qc = float(sigma_rate_walk) ** 2
     tx, ty, tz = (float(v) * dt for v in w)
     n = math.sqrt(tx * tx + ty * ty + tz * tz)
-    _, _, d = _series_coeffs(n)
+    _, _, d = series_coeffs(n)
     e, f = _rate_coeffs(n)
     k = _skew(tx, ty, tz)
     k2 = k @ k
@@ -158,7 +161,7 @@ class RateMEKF(MEKF):
         omega0_rad_s: initial rate estimate (rad/s, body frame); default zero.
         q_body_cam: body-to-camera mounting (camera → body); default identity.
         gate_probability: chi-square probability of the NIS gate; ``None`` disables it.
-        relinearize_tol: as in :class:`~adfusion.mekf.MEKF`.
+        relinearize_tol: as in :class:`~adfusion.estimation.mekf.MEKF`.
 
     Interface: the MEKF's (:meth:`propagate`, ``update_attitude``, ``update_vector``,
     ``update_camera_attitude``, ``update_camera_vector``, ``q_body_icrs``, ``q_cam_icrs``,
@@ -238,18 +241,18 @@ class RateMEKF(MEKF):
         if not math.isfinite(tx * tx + ty * ty + tz * tz):
             raise ValueError(f"rate estimate × dt overflows: {self._w} × {dt}")
         phi = self._phi
-        phi[:3] = _phi_rows(tx, ty, tz, dt)
+        phi[:3] = phi_rows(tx, ty, tz, dt)
         phi[:3, 3:] *= -1.0  # δθ' = −[ω̂]× δθ − δω
         q_noise = rate_process_noise(self._w, dt, self._su)
-        self._q = _qnormalize(_qmul(_qexp(-tx, -ty, -tz), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(-tx, -ty, -tz), self._q))
         p = phi.dot(self._P).dot(phi.T)
         p += q_noise
-        self._P = _symmetrize(p)
+        self._P = symmetrize(p)
 
     def _apply(self, dx: Array, new_p: Array) -> None:
         """Reset: ``q ← Exp(δθ) ⊗ q``, ``ω̂ ← ω̂ + δω``, error state zeroed."""
         d = dx.tolist()
         w = self._w
-        self._q = _qnormalize(_qmul(_qexp(d[0], d[1], d[2]), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(d[0], d[1], d[2]), self._q))
         self._w = [w[0] + d[3], w[1] + d[4], w[2] + d[5]]
-        self._P = _symmetrize(new_p)
+        self._P = symmetrize(new_p)
