@@ -27,9 +27,9 @@ refuses a near-collinear triple (:class:`CollinearTripleError`) instead of solvi
 
 Example (a synthetic selection of five stars; the truth is the only candidate):
     >>> import numpy as np
-    >>> from starid import rotations as rot
-    >>> from starid.catalog import Catalog
-    >>> from starid.bleif_catalog import PatternCatalog
+    >>> from adfusion.starid import rotations as rot
+    >>> from adfusion.starid.catalog import Catalog
+    >>> from adfusion.starid.bleif_catalog import PatternCatalog
     >>> pc = PatternCatalog.build(Catalog.hipparcos(mag_limit=6.5))
     >>> cam = tubsat_camera()
     >>> q = rot.q_cam_icrs_from_radec_roll(*np.radians([97.4, 49.1, 30.0]))
@@ -50,13 +50,12 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+from adfusion.starid import rotations as rot
+from adfusion.starid.attitude import wahba
+from adfusion.starid.bleif_catalog import PatternCatalog, direction_angles_rad
+from adfusion.starid.camera import Camera
+from adfusion.starid.star_angles import q_cam_icrs_from_star_angles, star_angles_from_q_cam_icrs
 from numpy.typing import ArrayLike, NDArray
-
-from starid import rotations as rot
-from starid.attitude import wahba
-from starid.bleif_catalog import PatternCatalog, direction_angles_rad
-from starid.camera import Camera
-from starid.star_angles import q_cam_icrs_from_star_angles, star_angles_from_q_cam_icrs
 
 __all__ = [
     "KX_DEG",

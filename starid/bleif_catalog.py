@@ -19,7 +19,7 @@ Example:
     90.0
     >>> round(direction_angle_deg(0.0, 0.0, 355.0, 0.0, faithful=True), 9)
     270.0
-    >>> from starid.catalog import Catalog
+    >>> from adfusion.starid.catalog import Catalog
     >>> pc = PatternCatalog.build(Catalog.hipparcos(mag_limit=4.0), n_stars=300)
     >>> len(pc), bool(np.all(np.diff(pc.dist_rad[0, :pc.size[0]]) >= 0))
     (300, True)
@@ -32,10 +32,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from adfusion.starid.cache import cached_arrays
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
-
-from starid.cache import cached_arrays
 
 __all__ = [
     "N_PATTERN_STARS",

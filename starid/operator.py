@@ -8,10 +8,10 @@ very large ones, the one nearest the image centre as reference).
 
 Example:
     >>> import numpy as np
-    >>> from starid import rotations as rot
-    >>> from starid.bleif import stars_in_frame, tubsat_camera
-    >>> from starid.bleif_catalog import PatternCatalog
-    >>> from starid.catalog import Catalog
+    >>> from adfusion.starid import rotations as rot
+    >>> from adfusion.starid.bleif import stars_in_frame, tubsat_camera
+    >>> from adfusion.starid.bleif_catalog import PatternCatalog
+    >>> from adfusion.starid.catalog import Catalog
     >>> pc = PatternCatalog.build(Catalog.hipparcos(mag_limit=6.5))
     >>> cam = tubsat_camera()
     >>> q = rot.q_cam_icrs_from_radec_roll(*np.radians([164.16, 43.53, 76.36]))
@@ -29,14 +29,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+from adfusion.starid.bleif import T_PIX, BleifCandidate, Overlay, find_matches, overlay
+from adfusion.starid.bleif_catalog import PatternCatalog
+from adfusion.starid.camera import Camera
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
-
-from starid.bleif import T_PIX, BleifCandidate, Overlay, find_matches, overlay
-from starid.bleif_catalog import PatternCatalog
-from starid.camera import Camera
 
 __all__ = ["IdentificationSession", "overlay_png", "suggest_stars"]
 
@@ -159,7 +158,7 @@ def suggest_stars(blocks_xy: ArrayLike, camera: Camera, n: int = 6, link_px: flo
     largest kept, and the one nearest the image centre goes first as the reference.
 
     >>> import numpy as np
-    >>> from starid.bleif import tubsat_camera
+    >>> from adfusion.starid.bleif import tubsat_camera
     >>> b = [[100, 100], [100, 102], [300, 310], [301, 312], [302, 314], [500, 50]]
     >>> suggest_stars(b, tubsat_camera()).round(1).tolist()
     [[301.0, 312.0], [100.0, 101.0]]

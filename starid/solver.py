@@ -833,8 +833,8 @@ class Solver:
     def _solve_bleif(self, xy: NDArray) -> Solution:
         """Bleif's MusterPr matcher (:mod:`starid.bleif`) on the brightest detections,
         each candidate through the same verification as a triad match."""
-        from starid.bleif import BleifParams, detection_selections, selection_of
-        from starid.bleif_catalog import PatternCatalog
+        from adfusion.starid.bleif import BleifParams, detection_selections, selection_of
+        from adfusion.starid.bleif_catalog import PatternCatalog
 
         params = self.bleif_params or BleifParams()
         if self._bleif_patterns is None:

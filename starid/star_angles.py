@@ -24,9 +24,8 @@ Example:
 from __future__ import annotations
 
 import numpy as np
+from adfusion.starid import rotations as rot
 from numpy.typing import NDArray
-
-from starid import rotations as rot
 
 __all__ = ["q_cam_icrs_from_star_angles", "q_cam_icrs_from_t_sq",
            "star_angles_from_q_cam_icrs", "t_sq", "t_sq_from_q_cam_icrs"]

@@ -13,9 +13,8 @@ import math
 
 import numpy as np
 import pytest
-
-from starid import rotations as rot
-from starid.bleif import (
+from adfusion.starid import rotations as rot
+from adfusion.starid.bleif import (
     KX_DEG,
     T_PIX,
     CollinearTripleError,
@@ -29,9 +28,9 @@ from starid.bleif import (
     stars_in_frame,
     tubsat_camera,
 )
-from starid.bleif_catalog import PatternCatalog, direction_angle_deg
-from starid.catalog import Catalog
-from starid.star_angles import star_angles_from_q_cam_icrs
+from adfusion.starid.bleif_catalog import PatternCatalog, direction_angle_deg
+from adfusion.starid.catalog import Catalog
+from adfusion.starid.star_angles import star_angles_from_q_cam_icrs
 
 
 @pytest.fixture(scope="module")

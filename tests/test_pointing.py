@@ -13,6 +13,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from adfusion.starid import rotations as rot
+from adfusion.starid.star_angles import (
+    q_cam_icrs_from_star_angles,
+    star_angles_from_q_cam_icrs,
+    t_sq,
+    t_sq_from_q_cam_icrs,
+)
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
@@ -35,13 +42,6 @@ from adfusion.pointing.slews import (
     star_angles_from_euler_quaternion,
     x_then_y,
     z_then_x,
-)
-from starid import rotations as rot
-from starid.star_angles import (
-    q_cam_icrs_from_star_angles,
-    star_angles_from_q_cam_icrs,
-    t_sq,
-    t_sq_from_q_cam_icrs,
 )
 
 CASSIOPEIA = rot.radec_to_vector(math.radians(15.0), math.radians(60.0))

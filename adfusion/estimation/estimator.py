@@ -211,9 +211,10 @@ class Estimator:
     def add_fix(self, t: float, q_cam_icrs: ArrayLike, covariance_cam: ArrayLike,
                 source: str = "star fix") -> StepRecord:
         """Adopt an attitude fix identified outside :meth:`step` — e.g. an operator-confirmed
-        candidate (:mod:`starid.operator`) — taken at time ``t`` (s): ``q_cam_icrs`` with its
-        3×3 camera-frame covariance (rad²). It initialises the filter, or updates it through
-        the NIS gate like a solver fix (a rejection is recorded, never dropped silently).
+        candidate (:mod:`adfusion.starid.operator`) — taken at time ``t`` (s): ``q_cam_icrs``
+        with its 3×3 camera-frame covariance (rad²). It initialises the filter, or updates it
+        through the NIS gate like a solver fix (a rejection is recorded, never dropped
+        silently).
 
         >>> import numpy as np
         >>> est = Estimator(None)

@@ -9,7 +9,7 @@ presses; every action is logged with its time.
 
 Example:
     >>> import numpy as np
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> model = DeadReckoning(rot.IDENTITY)
     >>> book = CommandBook(model)
     >>> i = book.add("Z", np.radians(50.8))

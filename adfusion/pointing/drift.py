@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from adfusion.estimator import Estimator
-from adfusion.mekf import MEKF
+from adfusion.estimation.estimator import Estimator
+from adfusion.estimation.mekf import MEKF
 
 __all__ = ["TAB_8_1_DEG_PER_MIN", "DriftModel", "boresight_sigma_deg", "drift_estimator",
            "time_left_s"]
