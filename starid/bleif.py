@@ -84,6 +84,9 @@ KX_DEG = 0.0292  # tubsat.md §2.3: measured scale factors of the 16 mm head (de
 KY_DEG = 0.0282
 T_PIX = 3.0  # px: the allowed marking offset (Eq. 4.14, "3 gave good results")
 _CHUNK = 512  # patterns per vectorised distance stage (keeps the iterator lazy)
+# a thesis attitude that misses a mark by more than twice the distance tolerance (0.35°,
+# 12 px) contradicts the marks: flagged
+_THESIS_RESIDUAL_MAX_DEG = 0.35
 
 
 def tubsat_camera(parity: int = 1) -> Camera:
@@ -149,7 +152,11 @@ class CollinearTripleError(ValueError):
 
 @dataclass
 class MatchCounters:
-    """What the search did (for the early-exit checks of tubsat.md §12 criterion 13)."""
+    """What the search did (tubsat.md §12 criterion 13): the marked stars and pairs the
+    thesis's sequential loops examine before a pattern is rejected — its early exits. The
+    stages run vectorised over many patterns at once; the counts are those of the
+    sequential algorithm, which the vectorised one reproduces decision for decision
+    (``pair_checks`` is counted in strict mode only)."""
 
     patterns: int = 0  # patterns examined
     rejected_distance: int = 0
@@ -170,7 +177,8 @@ class BleifCandidate:
     angles (AZ: image up from north towards west). ``residuals_rad``: per marked star, the
     angle between its line of sight and its catalogue star at this attitude (NaN for a
     star left out). ``problem`` is non-empty when no attitude could be computed (then
-    ``q_cam_icrs`` is None), e.g. a near-collinear Dreibein triple.
+    ``q_cam_icrs`` is None, e.g. a near-collinear Dreibein triple) or when the thesis
+    attitude misses a marked star by more than 0.35° (kept, but flagged).
     """
 
     pattern: int
@@ -287,7 +295,28 @@ def find_matches(
         counters.patterns += len(D)
         counters.distance_checks += int(first_fail.sum())
         counters.rejected_distance += int(fails.sum())
-        for off in np.flatnonzero(~fails).tolist():
+        surv = np.flatnonzero(~fails)
+        if len(surv) and n_other >= 2:
+            # stage 2, vectorised over the survivors: has[s, q] = pair q has a partner pair
+            has = _pair_table(D[surv], patterns.az_rad[start:start + _CHUNK][surv], m, dtol,
+                              k_tol)
+            if k_miss == 0:  # strict: the first pair without a partner rejects the pattern
+                bad = ~has
+                anyfail = bad.any(axis=1)
+                counters.pair_checks += int(np.where(anyfail, np.argmax(bad, axis=1) + 1,
+                                                     has.shape[1]).sum())
+                counters.rejected_angle += int(anyfail.sum())
+                surv = surv[~anyfail]
+            else:  # k-of-n: n − k stars, each with partner pairs to the n − k − 1 others
+                need = n_other - k_miss
+                iu, ju = np.triu_indices(n_other, 1)
+                deg = np.zeros((len(surv), n_other), dtype=np.int64)
+                np.add.at(deg, (slice(None), iu), has)
+                np.add.at(deg, (slice(None), ju), has)
+                keep = (deg >= need - 1).sum(axis=1) >= need
+                counters.rejected_angle += int((~keep).sum())
+                surv = surv[keep]
+        for off in surv.tolist():
             p = start + off
             cand = _try_pattern(patterns, p, m, dtol, k_miss, k_tol, faithful, counters)
             if cand is None:
@@ -313,59 +342,81 @@ def _try_pattern(pc: PatternCatalog, p: int, m: _Marked, dtol: float, k_miss: in
         cp.append(k[np.argsort(np.abs(d[k] - m.dist[j]), kind="stable")])
     n = len(cp)
     phi = _wrap(m.alpha[:, None] - m.alpha[None, :])  # Eq. 4.15
-
-    def pair_ok(i: int, j: int, li: NDArray, kj: NDArray) -> NDArray:
-        """(len(li), len(kj)) matrix: pattern pair (l, k) fits image pair (i, j)."""
-        dphi = _wrap(az[li][:, None] - az[kj][None, :]) - phi[i, j]  # Eq. 4.16, 4.28
-        ok = np.abs(_wrap(dphi)) < k_tol * m.sigma[i, j]
-        return ok & (li[:, None] != kj[None, :])
-
-    if k_miss == 0:  # the thesis's strict pair stage, first failure rejects the pattern
+    # every candidate pair at once: pattern pair (l, k) fits image pair (label l, label k)
+    allc = np.concatenate(cp)
+    offs = np.r_[0, np.cumsum([len(c) for c in cp])]
+    lab = np.repeat(np.arange(n), np.diff(offs))
+    diff = _wrap(az[allc][:, None] - az[allc][None, :])  # Eq. 4.16
+    ok = np.abs(_wrap(diff - phi[lab[:, None], lab[None, :]])) < (
+        k_tol * m.sigma[lab[:, None], lab[None, :]])  # Eq. 4.28
+    ok &= allc[:, None] != allc[None, :]
+    if k_miss == 0 and faithful:  # the thesis's PATCP slots, overwritten pair by pair
         patcp = np.full(n, -1, dtype=np.int64)
         for i in range(n):
             for j in range(i + 1, n):
-                counters.pair_checks += 1
-                ok = pair_ok(i, j, cp[i], cp[j])
-                if not ok.any():
-                    counters.rejected_angle += 1
+                hit = np.argwhere(ok[offs[i]:offs[i + 1], offs[j]:offs[j + 1]])
+                if len(hit) == 0:
                     return None
-                a, b = np.argwhere(ok)[0]
-                patcp[i], patcp[j] = cp[i][a], cp[j][b]  # overwritten by later pairs
-        if faithful:
-            return patcp, 0
-    assign = _consistent_assignment(cp, pair_ok, k_miss)
-    if assign is None:
+                patcp[i], patcp[j] = cp[i][hit[0, 0]], cp[j][hit[0, 1]]
+        return patcp, 0
+    choice = _consistent_assignment([list(range(offs[j], offs[j + 1])) for j in range(n)],
+                                    allc.tolist(), ok.tolist(), k_miss)
+    if choice is None:
         counters.rejected_assignment += 1
         return None
+    assign = np.array([allc[g] if g >= 0 else -1 for g in choice], dtype=np.int64)
     return assign, int(np.sum(assign < 0))
 
 
-def _consistent_assignment(cp: list[NDArray], pair_ok, k_miss: int) -> NDArray | None:
-    """A one-to-one assignment of marked stars to pattern stars that fits every pair,
-    with as few stars left out as possible (at most ``k_miss``); depth-first."""
-    n = len(cp)
+def _pair_table(D: NDArray, AZ: NDArray, m: _Marked, dtol: float,
+                k_tol: float) -> NDArray[np.bool_]:
+    """For patterns with distance rows ``D`` and direction angles ``AZ`` (S, cap): whether
+    each image pair (i < j, in ``np.triu_indices`` order) has a pattern pair of distance
+    partners whose direction-angle difference fits (Eq. 4.28), (S, n_pairs)."""
+    n = len(m.dist)
+    lo = np.stack([(D < d - dtol).sum(axis=1) for d in m.dist], axis=1)  # (S, n)
+    hi = np.stack([(D <= d + dtol).sum(axis=1) for d in m.dist], axis=1)
+    width = hi - lo
+    w = max(int(width.max()), 1)
+    idx = lo[:, :, None] + np.arange(w)  # (S, n, w) member positions
+    valid = np.arange(w) < width[:, :, None]
+    az = np.take_along_axis(AZ[:, None, :], np.minimum(idx, AZ.shape[1] - 1), axis=2)
+    phi = _wrap(m.alpha[:, None] - m.alpha[None, :])
+    iu, ju = np.triu_indices(n, 1)
+    out = np.empty((len(D), len(iu)), dtype=bool)
+    for q, (i, j) in enumerate(zip(iu.tolist(), ju.tolist(), strict=True)):
+        dif = _wrap(az[:, i, :, None] - az[:, j, None, :] - phi[i, j])
+        ok = np.abs(dif) < k_tol * m.sigma[i, j]
+        ok &= valid[:, i, :, None] & valid[:, j, None, :]
+        ok &= idx[:, i, :, None] != idx[:, j, None, :]
+        out[:, q] = ok.any(axis=(1, 2))
+    return out
+
+
+def _consistent_assignment(cand: list[list[int]], member: list[int], ok: list[list[bool]],
+                           k_miss: int) -> list[int] | None:
+    """A one-to-one assignment of marked stars to pattern stars that fits every pair
+    (``cand[j]``: star j's candidates, as indices into ``member`` and the pair table
+    ``ok``), with as few stars left out as possible (at most ``k_miss``); depth-first.
+    Returns each star's candidate (−1: left out)."""
+    n = len(cand)
+    out = [-1] * n
+
+    def extend(j: int, skips: int, allowed: int) -> bool:
+        if j == n:
+            return True
+        chosen = [g for g in out[:j] if g >= 0]
+        used = {member[g] for g in chosen}
+        for g in cand[j]:
+            if member[g] not in used and all(ok[h][g] for h in chosen):
+                out[j] = g
+                if extend(j + 1, skips, allowed):
+                    return True
+        out[j] = -1
+        return skips < allowed and extend(j + 1, skips + 1, allowed)
+
     for allowed in range(k_miss + 1):
-        out = np.full(n, -1, dtype=np.int64)
-
-        def extend(j: int, skips: int, allowed: int = allowed, out: NDArray = out) -> bool:
-            if j == n:
-                return True
-            for k in cp[j].tolist():
-                if k in out[:j]:
-                    continue
-                kk = np.array([k])
-                if all(pair_ok(i, j, np.array([out[i]]), kk)[0, 0]
-                       for i in range(j) if out[i] >= 0):
-                    out[j] = k
-                    if extend(j + 1, skips):
-                        return True
-                    out[j] = -1
-            if skips < allowed:
-                out[j] = -1
-                return extend(j + 1, skips + 1)
-            return False
-
-        if extend(0, 0):
+        if extend(0, 0, allowed):
             return out
     return None
 
@@ -407,6 +458,12 @@ def _with_attitude(pc: PatternCatalog, p: int, m: _Marked, found: tuple[NDArray,
     if q is not None:
         pred = rot.rotate(q, r)
         res[used] = np.arccos(np.clip(np.sum(pred * b, axis=1), -1.0, 1.0))
+        worst = math.degrees(float(np.nanmax(res)))
+        if attitude == "thesis" and worst > _THESIS_RESIDUAL_MAX_DEG:
+            # CalcAzimut's AZ belongs to the reference star, not the boresight, and the
+            # Dreibein amplifies marking errors: say so rather than hand it on silently
+            problem = (f"thesis attitude misses a marked star by {worst:.2f}° (> "
+                       f"{_THESIS_RESIDUAL_MAX_DEG:g}°); attitude='wahba' fits all marks")
     return BleifCandidate(p, int(pc.ids[p]), assignment, star_index, q, cov, res, n_missing,
                           attitude, problem, cam)
 
