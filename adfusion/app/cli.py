@@ -283,7 +283,7 @@ def _scenario(name: str, duration: float, seed: int, render: bool):
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from adfusion.app.pipeline import simulate
+    from adfusion.app.replay import simulate
 
     if not args.duration > 0:
         raise ValueError("--duration must be positive")
@@ -304,7 +304,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from adfusion.app.pipeline import replay
+    from adfusion.app.replay import replay
 
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
@@ -325,7 +325,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from adfusion.app.pipeline import replay, simulate
+    from adfusion.app.replay import replay, simulate
     from adfusion.app.report import report
 
     out = Path(args.output)
