@@ -72,7 +72,7 @@ def test_without_drift_the_pass_ends_on_the_target(cat, pc):
     assert res.ok, res.reason
     assert res.pointing_error_deg < 0.3  # the star fix's own error only
     # independent check of the geometry: the true line of sight at the best time
-    truth = [e for e in res.events if e[1] == "/truth/state"][-1][2]["q_cam_icrs"]
+    truth = [e for e in res.events if e[1] == "/truth/state"][-1][2]["q_body_icrs"]
     orb = example_orbit()  # the config's default orbit
     p = earth_target_direction(orb, res.ref_time, 13.3, 52.5)
     b = rot.to_matrix(truth)[2]
@@ -109,6 +109,12 @@ def test_simulate_tubsat_writes_the_pass_to_mcap(tmp_path):
             "/tubsat/pointing"} <= topics
     commands = [m for m in msgs if m.topic == "/tubsat/command"]
     assert [c.payload["kind"] for c in commands] == ["send", "query"] * 3
+    from adfusion.logs.schemas import JSON_SCHEMAS
+    from jsonschema import validate
+
+    for m in msgs:  # the shared topics follow the log's schemas
+        if m.topic in JSON_SCHEMAS:
+            validate(m.payload, JSON_SCHEMAS[m.topic][1])
     final = next(m for m in msgs if m.topic == "/tubsat/pointing")
     assert final.payload["error_deg"] == pytest.approx(res.pointing_error_deg)
     assert reader.metadata["config"]["t0"].startswith("2003-02-27T23:06:20")

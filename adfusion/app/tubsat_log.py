@@ -23,7 +23,7 @@ from __future__ import annotations
 from dataclasses import asdict
 from pathlib import Path
 
-from adfusion.logs import LogWriter
+from adfusion.logs import LogWriter, topics
 from adfusion.pointing.night_pass import NightPassConfig, NightPassResult, run_night_pass
 from adfusion.starid.bleif import tubsat_camera
 
@@ -43,6 +43,6 @@ def simulate_tubsat(path: str | Path, seed: int = 0, n_marked: int = 4) -> Night
         log.add_camera_model(tubsat_camera().to_dict())
         for t, topic, payload in sorted(res.events, key=lambda e: e[0]):
             log.write_json(topic, t, payload)
-            if topic == "/truth/state":
-                log.write_attitude("/truth/pose", t, payload["q_cam_icrs"])
+            if topic == topics.TRUTH_STATE:
+                log.write_attitude(topics.TRUTH_POSE, t, payload["q_body_icrs"])
     return res

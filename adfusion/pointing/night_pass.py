@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from adfusion.logs import topics
 from adfusion.pointing.commands import CommandBook
 from adfusion.pointing.drift import (
     DriftModel,
@@ -134,7 +135,7 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
     ref_time, el = best_time(orbit, config.t0, config.lon_deg, config.lat_deg)
     res.ref_time, res.max_elevation_deg = ref_time, el
     t_ref = (ref_time - config.t0).total_seconds()
-    ev.append((0.0, "/tubsat/plan", {"ref_time": ref_time.isoformat(), "max_elevation_deg": el,
+    ev.append((0.0, topics.TUBSAT_PLAN, {"ref_time": ref_time.isoformat(), "max_elevation_deg": el,
                                      "target_lon_lat_deg": [config.lon_deg, config.lat_deg]}))
 
     rng = np.random.default_rng(config.seed)
@@ -143,12 +144,12 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
     acs = SimulatedACS(q0, bias_cam_rad_s=bias_cam,
                        slew_rate_rad_s=math.radians(config.slew_rate_deg_s))
     blocks = star_blocks(cat, cam, q0, seed=config.seed, mag_limit=config.mag_limit)
-    ev.append((0.0, "/tubsat/blocks", {"xy": blocks.xy, "star_id": blocks.star_id}))
+    ev.append((0.0, topics.TUBSAT_BLOCKS, {"xy": blocks.xy, "star_id": blocks.star_id}))
 
     session = IdentificationSession(pc, cam, blocks.xy)
     marked = session.suggest(n=config.n_marked)
     res.marked_xy = marked
-    ev.append((0.0, "/tubsat/marked", {"xy": marked}))
+    ev.append((0.0, topics.TUBSAT_MARKED, {"xy": marked}))
     if len(marked) < 3:
         res.reason = f"only {len(marked)} multi-block stars in the image"
         return res
@@ -158,7 +159,7 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
         shown += 1
         ov = session.overlay(cand)
         ok = cand.q_cam_icrs is not None and operator_accepts(ov, config.mag_limit)
-        ev.append((0.0, "/tubsat/candidate", {
+        ev.append((0.0, topics.TUBSAT_CANDIDATE, {
             "index": shown, "ref_id": cand.ref_id, "ra_de_az_deg": cand.ra_de_az_deg,
             "occupied": int(ov.occupied[ov.mag <= config.mag_limit].sum()),
             "expected": int((ov.mag <= config.mag_limit).sum()),
@@ -180,7 +181,7 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
     est = drift_estimator(config.drift_model)
     session.lock(est, 0.0)
     res.time_left_at_fix_s = time_left_s(est.filter, config.budget_deg)
-    ev.append((0.0, "/tubsat/lock", {"q_cam_icrs": est.filter.q_body_icrs,
+    ev.append((0.0, topics.TUBSAT_LOCK, {"q_cam_icrs": est.filter.q_body_icrs,
                                      "time_left_s": res.time_left_at_fix_s}))
     clock = [0.0]
 
@@ -191,8 +192,10 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
             acs.advance(tk)
             g = acs.gyro(tk)
             est.step(tk, gyro=g)
-            ev.append((tk, "/truth/state", {"q_cam_icrs": acs.q_cam_icrs}))
-            ev.append((tk, "/imu/gyro", {"omega": g}))
+            ev.append((tk, topics.TRUTH_STATE, {
+                "t": tk, "q_body_icrs": acs.q_cam_icrs,  # the body frame is the camera's
+                "omega": g - acs.bias_cam_rad_s, "bias": acs.bias_cam_rad_s}))
+            ev.append((tk, topics.GYRO, {"omega": g}))
         clock[0] = t_end
 
     run_to(config.determination_s)
@@ -208,7 +211,7 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
         if not book.complete(i):
             res.reason = f"slew {i} ({axis}) not executed"
             return res
-    ev += [(e.t, "/tubsat/command", {"kind": e.kind, "index": e.index, "axis": e.axis,
+    ev += [(e.t, topics.TUBSAT_COMMAND, {"kind": e.kind, "index": e.index, "axis": e.axis,
                                      "angle_deg": math.degrees(e.angle_rad)})
            for e in book.log]
     if clock[0] > t_ref:
@@ -220,7 +223,7 @@ def run_night_pass(config: NightPassConfig = NightPassConfig(),
     res.pointing_error_deg = math.degrees(math.acos(max(-1.0, min(1.0, float(b_true @ u)))))
     res.predicted_sigma_deg = boresight_sigma_deg(est.filter)
     ra, de, az = (math.degrees(a) for a in star_angles_from_q_cam_icrs(acs.q_cam_icrs))
-    ev.append((t_ref, "/tubsat/pointing", {
+    ev.append((t_ref, topics.TUBSAT_POINTING, {
         "error_deg": res.pointing_error_deg, "sigma_deg": res.predicted_sigma_deg,
         "budget_deg": config.budget_deg, "true_ra_de_az_deg": [ra, de, az]}))
     res.ok = True
