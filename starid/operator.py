@@ -139,6 +139,19 @@ class IdentificationSession:
             raise ValueError("no candidate on show")
         return overlay(c, self.patterns, self.camera, self.blocks_xy)
 
+    def overlay_pngs(self, folder: str | Path, limit: int | None = None) -> list[Path]:
+        """One overlay PNG per candidate (``candidate-01.png`` …, catalogue order, at most
+        ``limit``) in ``folder``, for stepping through them in a notebook or a viewer."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        paths = []
+        for k, c in enumerate(self.matches()[:limit]):
+            if c.q_cam_icrs is None:
+                continue
+            paths.append(overlay_png(self.overlay(c), self.camera,
+                                     folder / f"candidate-{k + 1:02d}.png", self.blocks_xy))
+        return paths
+
     def lock(self, estimator, t: float):
         """Hand the accepted attitude to an estimator (``adfusion.Estimator.add_fix``) as a
         star fix at time ``t`` with its covariance; returns the estimator's record."""

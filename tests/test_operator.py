@@ -101,6 +101,8 @@ def test_overlay_png_draws_the_candidate(pc, scene, tmp_path):
     path = overlay_png(ov, cam, tmp_path / "cand.png", blocks.xy)
     img = cv2.imread(str(path))
     assert img.shape == (cam.height, cam.width, 3)
+    paths = s.overlay_pngs(tmp_path / "steps")
+    assert [p.name for p in paths][:1] == ["candidate-01.png"] and len(paths) == s.count
     # the reference's circle is light green: pixels of that colour near its position
     x, y = ov.xy[ov.is_reference][0]
     win = img[int(y) - 15:int(y) + 16, int(x) - 15:int(x) + 16].reshape(-1, 3)

@@ -47,7 +47,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    help="catalogue limit, estimated Johnson V (default 6.5)")
     s.add_argument("--epoch", type=float, default=None,
                    help="observation epoch, Julian year (default: now)")
-    s.add_argument("--method", choices=["nstar", "triad"], default="nstar")
+    s.add_argument("--method", choices=["nstar", "triad", "bleif"], default="nstar")
     s.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
     s.add_argument("--overlay", metavar="PNG", help="write an overlay image for checking")
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
