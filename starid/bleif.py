@@ -298,16 +298,20 @@ def find_matches(
         surv = np.flatnonzero(~fails)
         if len(surv) and n_other >= 2:
             # stage 2, vectorised over the survivors: has[s, q] = pair q has a partner pair
-            has = _pair_table(D[surv], patterns.az_rad[start:start + _CHUNK][surv], m, dtol,
-                              k_tol)
+            stage = _PairStage(D[surv], patterns.az_rad[start:start + _CHUNK][surv], m,
+                               dtol, k_tol)
             if k_miss == 0:  # strict: the first pair without a partner rejects the pattern
-                bad = ~has
-                anyfail = bad.any(axis=1)
-                counters.pair_checks += int(np.where(anyfail, np.argmax(bad, axis=1) + 1,
-                                                     has.shape[1]).sum())
-                counters.rejected_angle += int(anyfail.sum())
-                surv = surv[~anyfail]
+                rows = np.arange(len(surv))
+                for q in range(len(stage.iu)):  # pair by pair, on the survivors only
+                    counters.pair_checks += len(rows)
+                    ok = stage.pair(q, rows)
+                    counters.rejected_angle += int((~ok).sum())
+                    rows = rows[ok]
+                    if not len(rows):
+                        break
+                surv = surv[rows]
             else:  # k-of-n: n − k stars, each with partner pairs to the n − k − 1 others
+                has = stage.table()
                 need = n_other - k_miss
                 iu, ju = np.triu_indices(n_other, 1)
                 deg = np.zeros((len(surv), n_other), dtype=np.int64)
@@ -368,29 +372,37 @@ def _try_pattern(pc: PatternCatalog, p: int, m: _Marked, dtol: float, k_miss: in
     return assign, int(np.sum(assign < 0))
 
 
-def _pair_table(D: NDArray, AZ: NDArray, m: _Marked, dtol: float,
-                k_tol: float) -> NDArray[np.bool_]:
-    """For patterns with distance rows ``D`` and direction angles ``AZ`` (S, cap): whether
-    each image pair (i < j, in ``np.triu_indices`` order) has a pattern pair of distance
-    partners whose direction-angle difference fits (Eq. 4.28), (S, n_pairs)."""
-    n = len(m.dist)
-    lo = np.stack([(D < d - dtol).sum(axis=1) for d in m.dist], axis=1)  # (S, n)
-    hi = np.stack([(D <= d + dtol).sum(axis=1) for d in m.dist], axis=1)
-    width = hi - lo
-    w = max(int(width.max()), 1)
-    idx = lo[:, :, None] + np.arange(w)  # (S, n, w) member positions
-    valid = np.arange(w) < width[:, :, None]
-    az = np.take_along_axis(AZ[:, None, :], np.minimum(idx, AZ.shape[1] - 1), axis=2)
-    phi = _wrap(m.alpha[:, None] - m.alpha[None, :])
-    iu, ju = np.triu_indices(n, 1)
-    out = np.empty((len(D), len(iu)), dtype=bool)
-    for q, (i, j) in enumerate(zip(iu.tolist(), ju.tolist(), strict=True)):
-        dif = _wrap(az[:, i, :, None] - az[:, j, None, :] - phi[i, j])
-        ok = np.abs(dif) < k_tol * m.sigma[i, j]
+class _PairStage:
+    """Stage 2 vectorised over patterns: their distance partners per marked star (as a
+    padded window of member positions) and, per image pair, whether a partner pair's
+    direction-angle difference fits (Eq. 4.28)."""
+
+    def __init__(self, D: NDArray, AZ: NDArray, m: _Marked, dtol: float, k_tol: float):
+        lo = np.stack([(D < d - dtol).sum(axis=1) for d in m.dist], axis=1)  # (S, n)
+        hi = np.stack([(D <= d + dtol).sum(axis=1) for d in m.dist], axis=1)
+        width = hi - lo
+        w = max(int(width.max()), 1)
+        self.idx = lo[:, :, None] + np.arange(w)  # (S, n, w) member positions
+        self.valid = np.arange(w) < width[:, :, None]
+        self.az = np.take_along_axis(AZ[:, None, :], np.minimum(self.idx, AZ.shape[1] - 1),
+                                     axis=2)
+        self.phi = _wrap(m.alpha[:, None] - m.alpha[None, :])
+        self.tol = k_tol * m.sigma
+        self.iu, self.ju = np.triu_indices(len(m.dist), 1)
+
+    def pair(self, q: int, rows: NDArray | slice = slice(None)) -> NDArray[np.bool_]:
+        """Pair number ``q`` (``np.triu_indices`` order) for the patterns ``rows``."""
+        i, j = int(self.iu[q]), int(self.ju[q])
+        az, valid, idx = self.az[rows], self.valid[rows], self.idx[rows]
+        ok = np.abs(_wrap(az[:, i, :, None] - az[:, j, None, :] - self.phi[i, j])) \
+            < self.tol[i, j]
         ok &= valid[:, i, :, None] & valid[:, j, None, :]
         ok &= idx[:, i, :, None] != idx[:, j, None, :]
-        out[:, q] = ok.any(axis=(1, 2))
-    return out
+        return ok.any(axis=(1, 2))
+
+    def table(self) -> NDArray[np.bool_]:
+        """Every pair for every pattern, (S, n_pairs)."""
+        return np.stack([self.pair(q) for q in range(len(self.iu))], axis=1)
 
 
 def _consistent_assignment(cand: list[list[int]], member: list[int], ok: list[list[bool]],
