@@ -27,6 +27,7 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -134,8 +135,6 @@ class PatternCatalog:
 
         def make() -> dict[str, np.ndarray]:
             return _build_arrays(vec, radius, int(cap), faithful)
-
-        import hashlib
 
         tag = hashlib.sha1(vec.tobytes() + ids.tobytes()).hexdigest()
         params = {"stars": tag, "radius_deg": float(radius_deg), "cap": int(cap),
