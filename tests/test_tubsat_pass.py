@@ -118,3 +118,16 @@ def test_simulate_tubsat_writes_the_pass_to_mcap(tmp_path):
     final = next(m for m in msgs if m.topic == "/tubsat/pointing")
     assert final.payload["error_deg"] == pytest.approx(res.pointing_error_deg)
     assert reader.metadata["config"]["t0"].startswith("2003-02-27T23:06:20")
+
+
+def test_operator_rejects_two_candidates_and_accepts_the_third(cat, pc):
+    """As in the thesis's example pass ("6 candidates, the 3rd correct"): at this attitude
+    the first two candidates' overlays leave expected stars without blocks; the third is
+    the truth."""
+    res = run_night_pass(NightPassConfig(star_angles_deg=(330.18, 14.98, 185.08), seed=0),
+                         cat, pc)
+    assert res.ok, res.reason
+    decisions = [e[2]["decision"] for e in res.events if e[1] == "/tubsat/candidate"]
+    assert decisions == ["reject", "reject", "accept"]
+    assert res.accepted_is_truth
+    assert res.pointing_error_deg < res.predicted_sigma_deg * 3 * math.sqrt(2)
