@@ -33,6 +33,7 @@ from adfusion.pointing.passplan import (
     elevation_deg,
     gmst_rad,
     plan_slews,
+    sky_target_direction,
 )
 from adfusion.pointing.slews import (
     az_null,
@@ -44,7 +45,7 @@ from adfusion.pointing.slews import (
     z_then_x,
 )
 
-CASSIOPEIA = rot.radec_to_vector(math.radians(15.0), math.radians(60.0))
+CASSIOPEIA = sky_target_direction(15.0, 60.0)
 
 
 def random_star_angles(rng, max_dec_deg=89.9):
@@ -135,6 +136,8 @@ def test_tab_8_2_row_3_z_angle_erratum_is_recorded():
 @pytest.mark.parametrize(("end", "dev"), [((14.41, 57.48), 2.54), ((10.87, 58.64), 2.51),
                                           ((12.47, 58.47), 2.00)])
 def test_eq_4_3_deviation_of_the_tab_8_2_end_attitudes(end, dev):  # criterion 6
+    np.testing.assert_allclose(CASSIOPEIA, rot.radec_to_vector(*np.radians([15.0, 60.0])),
+                               atol=1e-15)
     v = rot.radec_to_vector(*np.radians(end))
     assert math.degrees(math.acos(float(v @ CASSIOPEIA))) == pytest.approx(dev, abs=0.01)
 

@@ -35,7 +35,7 @@ from adfusion.pointing.slews import az_null, slew, x_then_y, z_then_x
 
 __all__ = ["EARTH_RADIUS_KM", "Orbit", "PassPlan", "best_time", "earth_target_direction",
            "earth_target_icrs_km",
-           "elevation_deg", "gmst_rad", "plan_slews"]
+           "elevation_deg", "gmst_rad", "plan_slews", "sky_target_direction"]
 
 EARTH_RADIUS_KM = 6378.0  # the thesis's "mean" radius (really the equatorial one)
 _MU_KM3_S2 = 398600.8  # WGS-72, as SGP4
@@ -115,6 +115,17 @@ def earth_target_icrs_km(lon_deg: float, lat_deg: float, gmst: float,
     lam, beta = math.radians(lon_deg), math.radians(lat_deg)
     return radius_km * np.array([math.cos(beta) * math.cos(gmst + lam),
                                  math.cos(beta) * math.sin(gmst + lam), math.sin(beta)])
+
+
+def sky_target_direction(ra_deg: float, de_deg: float) -> NDArray[np.float64]:
+    """A sky target (§6.2, the Cassiopeia tests): its direction from Eq. 4.2, the same at
+    any time and from any orbit position.
+
+    >>> np.round(sky_target_direction(90.0, 0.0), 12).tolist()
+    [0.0, 1.0, 0.0]
+    """
+    ra, de = math.radians(ra_deg), math.radians(de_deg)
+    return np.array([math.cos(de) * math.cos(ra), math.cos(de) * math.sin(ra), math.sin(de)])
 
 
 def elevation_deg(r_sat_km: ArrayLike, target_km: ArrayLike) -> NDArray[np.float64]:
