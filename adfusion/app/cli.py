@@ -58,7 +58,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                         "of sky (default: 30, applied when the catalogue holds more)")
     s.add_argument("--epoch", type=float, default=None,
                    help="observation epoch, Julian year (default: now)")
-    s.add_argument("--method", choices=["nstar", "triad"], default="nstar")
+    s.add_argument("--method", choices=["nstar", "triad", "bleif"], default="nstar")
     s.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
     s.add_argument("--overlay", metavar="PNG", help="write an overlay image (one image only)")
     s.add_argument("-o", "--out-dir", metavar="DIR",
@@ -98,8 +98,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     cb.add_argument("--json", action="store_true", help="print JSON instead of text")
     cb.set_defaults(func=cmd_calibrate)
 
-    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo)")
-    sm.add_argument("scenario", choices=["oedipus", "leo"])
+    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo, "
+                        "tubsat: Bleif's night pass to Berlin)")
+    sm.add_argument("scenario", choices=["oedipus", "leo", "tubsat"])
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
     sm.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     sm.add_argument("--seed", type=int, default=0)
@@ -610,6 +611,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     if not args.duration > 0:
         raise ValueError("--duration must be positive")
+    if args.scenario == "tubsat":  # its own timeline: contact at 23:06:20 to the target
+        from adfusion.app.tubsat_log import simulate_tubsat
+
+        res = simulate_tubsat(args.output, seed=args.seed)
+        print(f"tubsat: {'ok' if res.ok else 'not ok: ' + res.reason}; target at "
+              f"{res.ref_time:%H:%M:%S} UTC, boresight {res.pointing_error_deg:.2f}° off "
+              f"(1σ budget {res.predicted_sigma_deg:.2f}°) → {args.output}")
+        return 0 if res.ok else 1
     t0 = time.perf_counter()
     n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render),
                  args.output, progress=sys.stderr.isatty())
