@@ -6,8 +6,9 @@ built from the code: ``adfusion.logs.topics.table()`` where the code has it, and
 :data:`adfusion.logs.schemas.JSON_SCHEMAS` for the fields. Without a topics table, the
 Foxglove topics come from the ``*_TOPIC`` constants of :mod:`adfusion.logs`, and what the
 code does not say (their frames, the fields a replay adds beyond a schema's) from
-:data:`NOTES` below; the build then fails when a topic of the code has no entry there, so
-the page cannot drift from the code.
+:data:`NOTES` below, and any other topic of ``adfusion.logs.topics`` from the docstring
+under its constant; the build then fails when a topic of the code has neither, so the page
+cannot drift from the code.
 
 Run it as a script to print the tables::
 
@@ -16,7 +17,10 @@ Run it as a script to print the tables::
 
 from __future__ import annotations
 
+import ast
 import importlib
+import inspect
+import itertools
 from typing import Any
 
 TABLE_MARK = "<!-- topics:table -->"
@@ -124,10 +128,37 @@ def code_topics() -> dict[str, str]:
     return found
 
 
+def topic_docs() -> dict[str, str]:
+    """Topic → the docstring under its constant in ``adfusion.logs.topics`` (read from the
+    source: attribute docstrings do not exist at run time)."""
+    try:
+        tree = ast.parse(inspect.getsource(_module("topics")))
+    except ImportError:
+        return {}
+    docs: dict[str, str] = {}
+    for node, after in itertools.pairwise(tree.body):
+        if (isinstance(node, ast.Assign) and isinstance(node.value, ast.Constant)
+                and isinstance(node.value.value, str) and isinstance(after, ast.Expr)
+                and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+            docs[node.value.value] = " ".join(after.value.value.split())
+    return docs
+
+
+def notes() -> dict[str, dict[str, Any]]:
+    """:data:`NOTES`, plus a row for every other topic of ``adfusion.logs.topics`` made from
+    its docstring (generic JSON unless the schemas know it)."""
+    out = dict(NOTES)
+    for topic, doc in topic_docs().items():
+        out.setdefault(topic, {"schema": "adfusion.Json", "by": "—", "frame": "—",
+                               "content": doc.replace("``", "`")})
+    return out
+
+
 def check() -> None:
-    """Raise when the code and :data:`NOTES` disagree on the set of topics."""
+    """Raise when a topic of the code has neither an entry in :data:`NOTES` nor a docstring
+    in ``adfusion.logs.topics``, or NOTES names a topic the code does not have."""
     code = code_topics()
-    missing = sorted(set(code) - set(NOTES))
+    missing = sorted(set(code) - set(notes()))
     if missing:
         raise RuntimeError(f"docs/gen_topics.py: topics in the code without an entry in NOTES: "
                            f"{', '.join(f'{t} ({code[t]})' for t in missing)}")
@@ -141,7 +172,7 @@ def check() -> None:
             raise RuntimeError(f"docs/gen_topics.py: NOTES has topics the code does not: "
                                f"{', '.join(unknown)}")
     schemas = _module("schemas").JSON_SCHEMAS
-    for topic, note in NOTES.items():
+    for topic, note in notes().items():
         if topic not in schemas and "schema" not in note:
             raise RuntimeError(f"docs/gen_topics.py: {topic} is neither in JSON_SCHEMAS nor "
                                "given a schema in NOTES")
@@ -181,8 +212,9 @@ def topics_table() -> str:
     schemas = _module("schemas").JSON_SCHEMAS
     rows = ["| topic | schema | encoding | frame | written by | content |",
             "|---|---|---|---|---|---|"]
-    for topic in sorted(NOTES):
-        note = NOTES[topic]
+    table = notes()
+    for topic in sorted(table):
+        note = table[topic]
         if topic in schemas:
             schema, encoding = schemas[topic][0], "JSON (jsonschema)"
         else:
@@ -210,8 +242,9 @@ def fields_table() -> str:
     check()
     rows = ["| topic | field | type | in the schema | description (unit, frame) |",
             "|---|---|---|---|---|"]
-    for topic in sorted(NOTES):
-        note = NOTES[topic]
+    table = notes()
+    for topic in sorted(table):
+        note = table[topic]
         if topic in schemas:
             schema = schemas[topic][1]
             required = set(schema.get("required", ()))
