@@ -6,7 +6,7 @@ star nearest the centre, the others the brightest) with clicks off by up to ±3 
 (uniform in a disc). Per marked-star count: how often the truth (right reference, attitude
 within 2°) is among the candidates, the candidate-count distribution, the share with a
 unique candidate, the truth's rank, and the time per search. Also the pattern catalogue's
-build and load times (tubsat.md §12 criterion 9). Single process (the machine is shared).
+build and load times (docs/references.md#bleif-2004). Single process (the machine is shared).
 
     python benchmarks/bench_bleif.py [--trials 500] [--out benchmarks/results/bleif.json]
 """

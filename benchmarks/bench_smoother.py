@@ -47,7 +47,7 @@ from adfusion.estimation.smoother import SmootherInput, smooth
 
 
 def _attitude_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:
-    """Body-frame δθ with ``R_true = Exp(δθ)·R_est`` (DESIGN.md), rows of (K, 3)."""
+    """Body-frame δθ with ``R_true = Exp(δθ)·R_est`` (docs/conventions.md), rows of (K, 3)."""
     return rot.log_map(rot.multiply(q_true, rot.inverse(q_est)))
 
 

@@ -4,7 +4,7 @@ His full simulation grid — 7 catalogues (V < 3.0 … 6.0) × 3 pair tolerances
 0.3°), 2000 frames each, his 384×288 camera at 0.051°/px
 (``adfusion.bench.renken_sim.simulate_cell``:
 Eq. 8.1 attitudes, equidistant projection, SAO-count-matched Hipparcos merged at 2 px) —
-printed as a markdown table next to his published figures (renken.md §8.2, from Tab.
+printed as a markdown table next to his published figures (Renken 1998 §8, from Tab.
 8.1–8.28): η, the multiple-match rate and the share of frames with fewer than 3 stars.
 
 Multiple matches are counted as he does: ``matching_counter ≥ 2`` over *all* frames,
@@ -49,7 +49,7 @@ from adfusion.bench.renken_sim import PUBLISHED_ETA, eq_8_1_attitudes, renken_ca
 
 TOLERANCES = (0.1, 0.2, 0.3)
 
-#: renken.md §8.2 (from Tab. 8.1–8.21), counts of 2000 frames per cell:
+#: Renken 1998 §8 (from Tab. 8.1–8.21), counts of 2000 frames per cell:
 #: (number_is < 3, matching_counter = 0, = 1, ≥ 2, clear_3_axis = η·2000)
 PUBLISHED_COUNTS: dict[tuple[float, float], tuple[int, int, int, int, int]] = {
     (3.0, 0.1): (1851, 1639, 173, 188, 146), (3.0, 0.2): (1855, 1653, 158, 189, 143),

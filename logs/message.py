@@ -19,7 +19,8 @@ class Message:
 
     Attributes:
         t_s: time in seconds (float; MCAP stores integer nanoseconds).
-        topic: one of the DESIGN topics (``/camera/image``, ``/imu/gyro``, ``/mag``, ...) or,
+        topic: one of the topics of docs/concepts/log-topics.md (``/camera/image``,
+            ``/imu/gyro``, ``/mag``, ...) or,
             for foreign MCAP channels that were not mapped, the channel's own topic.
         payload: ``numpy.ndarray`` for images (grey, uint8 or uint16), a ``dict`` otherwise.
             Quaternions inside payloads are Hamilton scalar-first ``[w, x, y, z]``.

@@ -1,6 +1,6 @@
 """JSON schemas (draft 2020-12) of the internal topics, registered per channel by the writer.
 
-Fields follow DESIGN.md's MCAP table. Quaternions are Hamilton scalar-first ``[w, x, y, z]``;
+Fields: docs/concepts/log-topics.md. Quaternions are Hamilton scalar-first ``[w, x, y, z]``;
 numbers may be ``null`` where a value is not finite (JSON has no NaN). Extra properties are
 allowed so that a component can add a diagnostic without a schema change; the listed ones are
 required.
@@ -108,4 +108,4 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/smoothed/state": ("adfusion.FilterState", FILTER_STATE),
     "/truth/state": ("adfusion.TruthState", TRUTH_STATE),
 }
-"""Topic → (schema name, JSON schema) for the JSON topics of DESIGN.md."""
+"""Topic → (schema name, JSON schema) for the JSON topics (docs/concepts/log-topics.md)."""

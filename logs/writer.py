@@ -233,7 +233,8 @@ class LogWriter:
         self._write_proto(topic, t_ns, fg.encode_pose(t_ns, q_wxyz, frame_id, position))
 
     def write_attitude(self, topic: str, t_s: float, q_body_icrs: ArrayLike) -> None:
-        """:meth:`write_pose` in ``icrs`` from ``q_body_icrs`` (the DESIGN name), conjugating."""
+        """:meth:`write_pose` in ``icrs`` from ``q_body_icrs`` (docs/conventions.md),
+        conjugating."""
         w, x, y, z = np.asarray(q_body_icrs, dtype=float).reshape(4)
         self.write_pose(topic, t_s, [w, -x, -y, -z], "icrs")
 

@@ -1,4 +1,4 @@
-"""Sensor models and simulators (DESIGN.md): truth dynamics, gyro, magnetometer with the IGRF
+"""Sensor models and simulators (docs/index.md): truth dynamics, gyro, magnetometer with the IGRF
 reference field in ICRS, and the star-camera frame renderer.
 
 * :mod:`sensors.dynamics` — torque-free rigid body (Euler's equations, coning) and prescribed
@@ -11,7 +11,7 @@ reference field in ICRS, and the star-camera frame renderer.
   Gaussian PSF, shot and read noise, hot pixels, motion streaks, an intensifier mode, planets
   and tethers.
 
-Everything is seeded and deterministic; nothing here writes files (DESIGN.md). Only
+Everything is seeded and deterministic; nothing here writes files (docs/decisions.md). Only
 ``starid`` (camera, catalogue, rotations) is imported from this project.
 
 Example — a spinning payload seen by all three sensors:

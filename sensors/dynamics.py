@@ -2,7 +2,7 @@
 
 Both integrate, with scipy's DOP853 (8th-order Dormand-Prince) at tight tolerances
 (``rtol=1e-12``, ``atol=1e-14`` by default, dense output), the attitude kinematics of
-``q_body_icrs`` (DESIGN.md: ``v_body = R(q_body_icrs) v_icrs``) driven by the body rate ω
+``q_body_icrs`` (docs/conventions.md: ``v_body = R(q_body_icrs) v_icrs``) driven by the body rate ω
 (rad/s, body frame):
 
     d/dt q_icrs_body = ½ q_icrs_body ⊗ [0, ω]   ⇔   d/dt q_body_icrs = −½ [0, ω] ⊗ q_body_icrs

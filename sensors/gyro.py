@@ -13,7 +13,7 @@ the integrated angle of the discrete samples has the same statistics as the cont
 model's at every sample time, so the Allan variance of a stationary record is exactly
 ``σv²/τ + σu²τ/3`` at τ = mΔt (see :func:`allan_deviation`).
 
-The deterministic errors, applied in this order (DESIGN.md: ``omega_meas = omega_body +
+The deterministic errors, applied in this order (docs/conventions.md: ``omega_meas = omega_body +
 bias + noise``, rad/s, body frame):
 
     ω_meas = clip(quantise((I + diag(s) + M) ω_true + ½(β_k+1 + β_k) + noise), ±saturation)

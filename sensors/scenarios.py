@@ -14,9 +14,9 @@ Two generators, each returning a :class:`Scenario`:
 frame). Everything is computed from ``seed``: two runs give the same samples bit for bit.
 Truth and the (small) gyro and magnetometer streams are computed up front; frames are
 rendered one at a time as the iterator reaches them, so a 1800-frame run never holds more
-than one image. Nothing here writes files (DESIGN.md): the caller records the events.
+than one image. Nothing here writes files (docs/decisions.md): the caller records the events.
 
-Event kinds and their ``data`` (NumPy arrays, SI units, DESIGN.md conventions):
+Event kinds and their ``data`` (NumPy arrays, SI units, docs/conventions.md):
 
 * ``"truth"`` — at every distinct sample time: ``q_body_icrs`` (4,), ``omega_body_rad_s``
   (3,), ``bias_rad_s`` (3,) (the gyro's true bias at its latest sample; the initial bias

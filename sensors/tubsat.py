@@ -1,11 +1,13 @@
-"""A DLR-TUBSAT-like satellite for night-pointing simulations (tubsat.md §2–§4, §9.1).
+"""A DLR-TUBSAT-like satellite for night-pointing simulations (Bleif 2004 §8.1.1).
+
+The thesis: docs/references.md#bleif-2004.
 
 Two pieces, both deterministic from a seed:
 
 * :func:`star_blocks` — a reduced star image as the on-board PHDRA program sends it: a
   list of 4 × 1 px blocks. The 16 mm lens is defocused on purpose, so a star is a disc
   whose rows each give one block (brighter → larger disc → more blocks); hot pixels give
-  single blocks (tubsat.md §4.1). Only stars down to ``mag_limit`` (≈ 5 after reduction on
+  single blocks (Bleif 2004 §3.1.2). Only stars down to ``mag_limit`` (≈ 5 after reduction on
   the damaged chip) register.
 * :class:`SimulatedACS` — three single-axis wheel-gyro units: inertial hold, slew commands
   at a constant rate after a command latency (> 1 s), and the gyro drift of Tab. 8.1. The

@@ -1,4 +1,4 @@
-"""Bleif's MusterPr reference-star matcher (DLR-TUBSAT, tubsat.md §5.5–§5.7).
+"""Bleif's MusterPr reference-star matcher (DLR-TUBSAT, Bleif 2004 §4.2.5).
 
 The operator marks stars in the image; the first is the *reference*. Every pattern of a
 :class:`~starid.bleif_catalog.PatternCatalog` (one per catalogue star as reference) is
@@ -17,7 +17,7 @@ tried in catalogue order, in two stages with early exits:
 without a partner (a hot-pixel block, a planet); the thesis's strict mode is ``k_miss = 0``.
 The default (modern) assignment is one-to-one and consistent over all pairs; with
 ``faithful=True`` the thesis's single PATCP slots are overwritten pair by pair
-(tubsat.md §11 item 8) and image distances and angles use the plane formulas Eq. 4.11–4.13
+(docs/references.md#bleif-2004) and image distances and angles use the plane formulas Eq. 4.11–4.13
 with the camera's k_x, k_y — otherwise they come from the camera model.
 
 Attitude per candidate: ``attitude="wahba"`` (default) fits all marked stars (with
@@ -80,7 +80,7 @@ __all__ = [
     "tubsat_camera",
 ]
 
-KX_DEG = 0.0292  # tubsat.md §2.3: measured scale factors of the 16 mm head (deg/px)
+KX_DEG = 0.0292  # Bleif 2004 §3.1.1: measured scale factors of the 16 mm head (deg/px)
 KY_DEG = 0.0282
 T_PIX = 3.0  # px: the allowed marking offset (Eq. 4.14, "3 gave good results")
 _CHUNK = 512  # patterns per vectorised distance stage (keeps the iterator lazy)
@@ -152,7 +152,7 @@ class CollinearTripleError(ValueError):
 
 @dataclass
 class MatchCounters:
-    """What the search did (tubsat.md §12 criterion 13): the marked stars and pairs the
+    """What the search did (docs/references.md#bleif-2004): the marked stars and pairs the
     thesis's sequential loops examine before a pattern is rejected — its early exits. The
     stages run vectorised over many patterns at once; the counts are those of the
     sequential algorithm, which the vectorised one reproduces decision for decision

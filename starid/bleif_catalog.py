@@ -1,4 +1,4 @@
-"""Bleif's MusterPr pattern catalogue (tubsat.md §5.4): one pattern per reference star.
+"""Bleif's MusterPr pattern catalogue (Bleif 2004 §4.2.4): one pattern per reference star.
 
 For each of the ``n_stars`` brightest stars (default 5000), every other star of the list
 closer than ``radius`` (20°) joins its pattern in list order until ``cap`` (150) are in;
@@ -8,7 +8,7 @@ the reference: the position angle measured from celestial north towards *west*
 
 The thesis's quadrant rule (Eq. 4.9/4.10: "RA_pattern > RA_reference → 360° − α")
 breaks across RA 0/360°; the default uses the wrapped RA difference (an atan2 on the
-tangent plane); ``faithful=True`` keeps the literal comparison (tubsat.md §11 item 6).
+tangent plane); ``faithful=True`` keeps the literal comparison (docs/references.md#bleif-2004).
 
 The arrays are built once and cached (:func:`starid.cache.cached_arrays`); a catalogue
 saves to and loads from an ``.npz`` file bit-exactly.
@@ -46,7 +46,7 @@ __all__ = [
     "direction_angles_rad",
 ]
 
-N_PATTERN_STARS = 5000  # tubsat.md §5.4: the 5000 brightest stars
+N_PATTERN_STARS = 5000  # Bleif 2004 §4.2.4: the 5000 brightest stars
 PATTERN_RADIUS_DEG = 20.0
 PATTERN_CAP = 150
 
@@ -77,7 +77,7 @@ def direction_angles_rad(ref: NDArray[np.float64], stars: NDArray[np.float64],
 
 def direction_angle_deg(ra_ref_deg: float, de_ref_deg: float, ra_deg: float, de_deg: float,
                         faithful: bool = False) -> float:
-    """One direction angle in degrees (tubsat.md §12 criterion 8).
+    """One direction angle in degrees (docs/references.md#bleif-2004).
 
     >>> [round(direction_angle_deg(0, 0, *s), 9) for s in ((0, 5), (0, -5), (5, 0))]
     [0.0, 180.0, 270.0]
@@ -126,7 +126,7 @@ class PatternCatalog:
             raise ValueError(f"need n_stars ≥ 2, cap ≥ 1, 0 < radius_deg < 180; got "
                              f"{n_stars}, {cap}, {radius_deg}")
         # the star list brightest first: the cap then keeps a dense pattern's brightest
-        # members (the thesis's list order is not stated; tubsat.md §11 item 10)
+        # members (the thesis's list order is not stated; docs/references.md#bleif-2004)
         order = np.argsort(np.asarray(catalog.mag), kind="stable")[: int(n_stars)]
         ids = np.asarray(catalog.ids, dtype=np.int64)[order]
         vec = np.ascontiguousarray(np.asarray(catalog.vectors, dtype=np.float64)[order])

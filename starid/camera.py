@@ -1,6 +1,6 @@
 """Camera models: pixels ⇄ unit vectors in the camera frame.
 
-Conventions (DESIGN.md): pixel coordinates are 0-based pixel *centres*, origin at the
+Conventions (docs/conventions.md): pixel coordinates are 0-based pixel *centres*, origin at the
 top-left pixel, x right, y down; the camera frame has +z along the boresight, +x along
 image +x and +y along image +y (down). Lens distortion uses OpenCV's model (K, D).
 
@@ -163,7 +163,7 @@ class Camera:
         center: tuple[float, float] | None = None,
         parity: int = 1,
     ) -> Camera:
-        """Yee's linear-angle camera: scale = FOV / pixels per axis (yee.md §2.3).
+        """Yee's linear-angle camera: scale = FOV / pixels per axis (Yee 1999 §2.3.4).
 
         >>> cam = Camera.yee(427, 319, 9.0130, 6.9049)   # the Vega image
         >>> round(float(np.degrees(1 / cam.K[0, 0])), 7)

@@ -7,7 +7,7 @@ The format is the one OpenCV's own calibration samples write with ``cv::FileStor
 is. ROS ``camera_info`` files (the same keys as ``{rows, cols, data}`` maps) load too.
 Two optional keys of ours: ``parity`` (−1 for a mirrored image) and ``model``
 (``pinhole``, the OpenCV model, by default). Pixel coordinates are OpenCV's: 0-based
-pixel centres, x right, y down (as DESIGN.md).
+pixel centres, x right, y down (as docs/conventions.md).
 
 Example:
     >>> import tempfile, pathlib

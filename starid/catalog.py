@@ -287,7 +287,7 @@ class Catalog:
             merge_sep_deg: if given, merge stars closer than this (Renken §8, see
                 :meth:`merged`) **before** applying the limit: every hip2 star takes part,
                 so two stars fainter than the limit can merge into one object above it, as
-                in Renken's simulator (renken.md §8.1). Faint stars also shift photocentres
+                in Renken's simulator (Renken 1998 §8). Faint stars also shift photocentres
                 and can bridge chains, so keep the radius far below the mean separation of
                 all 118k stars (≈ 0.6°): at 0.25° ~ 40 % of the stars end up in groups, at
                 1° the whole sky collapses into a dozen objects. The merged result is cached
@@ -468,8 +468,8 @@ class Catalog:
         the magnitude ``−2.5 lg Σ 10^(−0.4 m)`` (Eq. A.5), the id of its brightest star
         (ties: the earlier one) and all original ids in ``components``, brightest first.
         Merging an already merged catalogue flattens the component lists. Objects keep the
-        order of their brightest star. Renken does not give the radius (renken.md §11 #24
-        suggests one camera pixel, 0.051°, his resolution).
+        order of their brightest star. Renken does not give the radius (one camera pixel,
+        0.051°, his resolution, is the natural guess; docs/references.md#renken-1998).
 
         >>> import numpy as np
         >>> a = np.radians(0.01)

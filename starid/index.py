@@ -8,7 +8,7 @@ slice found with ``np.searchsorted``:
 * a CSR neighbour list — for each star, its neighbours sorted by ascending separation:
   extending a partial pattern by one star is a window look-up in the first star's row.
 
-Separations are stored as cosines (dot products), as in Renken's matcher (renken.md §4.3):
+Separations are stored as cosines (dot products), as in Renken's matcher (Eq. 6.34–6.37):
 descending cosine = ascending angle. Built once per (catalogue, max separation) and cached
 on disk (:mod:`starid.cache`).
 
@@ -191,7 +191,7 @@ class PatternIndex:
                                       self.nbr_idx, self.nbr_cos, self.nbr_bin))
 
     def pairs_in_window(self, cos_min: float, cos_max: float) -> tuple[IntArray, IntArray]:
-        """Pairs with ``cos_min < cos < cos_max`` (strict, renken.md AC-12), i < j."""
+        """Pairs with ``cos_min < cos < cos_max`` (strict, Renken 1998 §6.9), i < j."""
         neg = self._neg_pair_cos
         lo = int(np.searchsorted(neg, -cos_max, side="right"))
         hi = max(lo, int(np.searchsorted(neg, -cos_min, side="left")))

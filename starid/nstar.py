@@ -3,10 +3,10 @@
 Given the pairwise angular distances of n image stars (n = 2…6, the closest pair first)
 and an angular tolerance, enumerate every ordered assignment (is_1 → cs_a1, …, is_n →
 cs_an) of distinct catalogue stars whose c(n,2) dot products all lie strictly inside
-the image windows, and which is not the mirror image of the pattern (renken.md §4.4–4.9,
-§4.12). ``len(result)`` is Renken's ``matching_counter``.
+the image windows, and which is not the mirror image of the pattern (Renken 1998 §6.1–6.6,
+§6.9; docs/references.md#renken-1998). ``len(result)`` is Renken's ``matching_counter``.
 
-Two implementations with identical results (renken.md AC-13, tested):
+Two implementations with identical results (tested: the same match sets):
 
 * :func:`match_faithful` — the §4.12 reference: nested loops over the catalogue (the
   innermost one vectorised), optional declination-difference pre-check and declination
@@ -53,7 +53,7 @@ class Pattern:
     """An image pattern ready for matching.
 
     ``angles`` (n, n) are the image-pair angular distances (rad), already in matching order
-    (closest pair first); ``cos_min`` / ``cos_max`` the strict cosine windows (renken.md
+    (closest pair first); ``cos_min`` / ``cos_max`` the strict cosine windows (Renken 1998
     Eq. 6.30–6.33; the lower angle is clamped at 0, so ``cos_max`` ≤ 1); ``chirality`` the
     sign of det[b1, b2, b3] of the first three camera-frame vectors (0 when they are too
     close to collinear for the mirror check to decide).
@@ -82,7 +82,7 @@ class Pattern:
         lo = np.maximum(a - tol_rad, 0.0)
         hi = np.minimum(a + tol_rad, np.pi)
         # δ_max: the largest pair distance plus the tolerance, so the declination
-        # pre-check can never reject a pair the window would accept (renken.md §11)
+        # pre-check can never reject a pair the window would accept (Renken 1998 §6.9)
         # (the diagonal's hi is the bare tolerance, never the maximum)
         return cls(a, np.cos(hi), np.cos(lo), int(chirality), float(hi.max()))
 
@@ -100,7 +100,7 @@ def chirality_of(b: NDArray[np.float64], min_altitude_rad: float = 0.0) -> int:
     """Sign of det[b0, b1, b2] (the triangle's handedness); 0 if undecidable.
 
     A proper rotation preserves it, so an image triangle and its true catalogue triangle
-    have the same sign and the mirror image the opposite one (renken.md §4.9). When the
+    have the same sign and the mirror image the opposite one (Renken 1998 §6.6). When the
     triangle's smallest altitude is below ``min_altitude_rad`` measurement noise could flip
     the sign, so the mirror check is skipped (verification still catches a mirror).
     """
@@ -120,7 +120,7 @@ def chirality_of(b: NDArray[np.float64], min_altitude_rad: float = 0.0) -> int:
 
 def closest_pair_first(angles: NDArray[np.float64]) -> NDArray[np.int64]:
     """Renken's closest-stars order: the closest pair first (the brighter of the two
-    first), the others in their original (brightness) order (renken.md §4.11)."""
+    first), the others in their original (brightness) order (Renken 1998 §6.8)."""
     # plain Python over at most 8 stars: a solve calls this once per pattern tried, and
     # the numpy version spent ~80 µs per call in overhead. Ties go to the first pair in
     # row-major order, as an argmin over the upper triangle would.
@@ -230,7 +230,7 @@ class WorkBudgetExceeded(RuntimeError):
     """The search would exceed its work budget; the caller reports `not ok`."""
 
 
-# --- the reference implementation (renken.md §4.12) ---------------------------------------
+# --- the reference implementation (Renken 1998 §6.9) ---------------------------------------
 
 
 def match_faithful(

@@ -1,7 +1,7 @@
 """Renken (1998) reproduction pieces: his image geometry and attitude method.
 
 What the thesis does differently from the product path, kept here so it can be
-reproduced exactly (renken.md §4.2, §4.9, §4.10):
+reproduced exactly (§6.6, §6.7, §6.9; docs/references.md#renken-1998):
 
 * image pair angles are ``angle_per_pixel × pixel distance`` (linear, no lens model);
 * the image triangle's handedness is the 2-D cross product in pixel coordinates;
@@ -10,11 +10,12 @@ reproduced exactly (renken.md §4.2, §4.9, §4.10):
 
 Angles are radians inside; ``omega`` is his "third angle". In ``"exact"`` mode it is
 the great-circle bearing (north through east) of the centre → edge direction plus 90°,
-the rigorous form of ``atan2(Δδ, −wrap(Δα)·cos δ)`` (renken.md §11 #21); it equals our
-roll (:mod:`adfusion.starid.rotations`). ``"thesis"`` mode is his printed ``atan2(Δδ, Δα)``.
+the rigorous form of ``atan2(Δδ, −wrap(Δα)·cos δ)`` (the thesis leaves the exact form open);
+it equals our roll (:mod:`adfusion.starid.rotations`). ``"thesis"`` mode is his printed
+``atan2(Δδ, Δα)``.
 His §8 simulation driver (Eq. 8.1 attitudes, the grid) is :mod:`adfusion.bench.renken_sim`.
 
-Example (renken.md AC-20):
+Example (Renken 1998 Eq. 6.16–6.20):
     >>> a, b = affine_coefficients([100, 100], [200, 100], [100, 200], [192, 144])
     >>> round(a, 6), round(b, 6)
     (0.92, 0.44)
@@ -117,7 +118,7 @@ def affine_attitude(
     """Renken's §6.7 attitude averaged over every triangle passing Cond. 8.1.
 
     Boresight directions are averaged as unit vectors and ω circularly (the thesis's
-    arithmetic mean breaks at the 0/360° wrap; renken.md §4.10 item 6).
+    arithmetic mean breaks at the 0/360° wrap; Renken 1998 §6.7).
     """
     if omega_mode not in ("exact", "thesis"):
         raise ValueError("omega_mode must be 'exact' or 'thesis'")

@@ -1,6 +1,6 @@
 """Rotations: Hamilton scalar-first quaternions, matrices, exp/log maps, RA/Dec/roll.
 
-The one place in the code base where rotation conventions live (DESIGN.md):
+The one place in the code base where rotation conventions live (docs/conventions.md):
 
 * quaternions are Hamilton, scalar first ``[w, x, y, z]``, unit norm, stored with w ≥ 0;
 * ``q_a_b`` rotates vectors from frame b into frame a: ``v_a = R(q_a_b) @ v_b``;
@@ -447,7 +447,7 @@ def _north_east(boresight: Array) -> tuple[Array, Array]:
 def q_cam_icrs_from_radec_roll(ra_rad: ArrayLike, dec_rad: ArrayLike, roll_rad: ArrayLike) -> Array:
     """Camera attitude from boresight RA/Dec and roll.
 
-    Camera frame (DESIGN.md): +z boresight, +x image right, +y image down. Roll is the
+    Camera frame (docs/conventions.md): +z boresight, +x image right, +y image down. Roll is the
     angle from celestial north to the image "up" direction (−y), positive towards east.
     At roll 0, north is up and east is to the *left*, as the sky looks from inside.
 

@@ -101,7 +101,7 @@ class Candidate:
 
 @dataclass(frozen=True)
 class Solution:
-    """Result of :meth:`Solver.solve` (DESIGN.md "Public API")."""
+    """Result of :meth:`Solver.solve` (docs/api/starid.md)."""
 
     ok: bool
     reason: str = ""

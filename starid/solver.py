@@ -1,6 +1,7 @@
 """Lost-in-space star identification: detections + camera → verified attitude.
 
-The pipeline for one frame (renken.md §4–§9, with a verification stage of our own):
+The pipeline for one frame (Renken 1998 §6–§9, docs/references.md#renken-1998; with a
+verification stage of our own):
 
 1. take the brightest ``n_max`` detections (3…6) as the pattern, closest pair first;
 2. enumerate every catalogue assignment consistent with all pair distances
@@ -88,7 +89,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             ``centroid_sigma_px``: 3·√2·σ·pixel scale plus 0.003° for lens residuals.
         centroid_sigma_px: 1-σ centroid error, used for the tolerance, match radius and
             covariance.
-        n_max, n_min: pattern sizes (renken.md: 3…6).
+        n_max, n_min: pattern sizes (Renken 1998: 3…6).
         p_false_max: acceptance threshold on the false-match probability.
         fov_error_deg: ± uncertainty of the camera's horizontal FOV (0 = known).
         fov_range_deg: instead, the horizontal FOV as a range (lo, hi) in degrees; the

@@ -1,6 +1,7 @@
 """Bleif's star angles (RA, DE, AZ) of a camera attitude, and his transformation T_SQ.
 
-DLR-TUBSAT (tubsat.md §3) describes an attitude by the boresight's right ascension RA and
+DLR-TUBSAT (Bleif 2004 §4.2.1, docs/references.md#bleif-2004) describes an attitude by the
+boresight's right ascension RA and
 declination DE and by AZ, the rotation about the boresight: the angle of the image "up"
 axis X_S from celestial north towards *west*. The satellite frame S has X_S = image up,
 Y_S = image right, Z_S = boresight; in our camera frame (x right, y down, z boresight)
@@ -8,7 +9,7 @@ that is X_S = −y_cam, Y_S = x_cam, Z_S = z_cam. So AZ is our roll
 (:func:`starid.rotations.radec_roll_from_q_cam_icrs`, north towards *east*) with the
 opposite sign: ``AZ = −roll (mod 360°)``.
 
-``T_SQ`` (Eq. 4.1, rebuilt in tubsat.md §3.2) has the S axes, expressed in the inertial
+``T_SQ`` (Eq. 4.1, rebuilt from the thesis) has the S axes, expressed in the inertial
 frame Q (= ICRS here), as rows. Angles are radians, as everywhere inside the library.
 
 Example:

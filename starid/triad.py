@@ -1,4 +1,4 @@
-"""Yee (1999) triad star identification and plate-constant pointing (seeds/yee.md §2.2–§2.12).
+"""Yee (1999) triad star identification and plate-constant pointing (docs/references.md#yee-1999).
 
 Lost-in-space identification without magnitudes, in the thesis's steps:
 
@@ -14,14 +14,14 @@ Lost-in-space identification without magnitudes, in the thesis's steps:
    centre; as our addition, ``q_cam_icrs`` from Wahba's problem on the matched stars (Yee
    gives no roll).
 
-Conventions. The API takes DESIGN.md pixels (origin top-left, y down). The geometric tests
+Conventions. The API takes docs/conventions.md pixels (origin top-left, y down). The geometric tests
 run, as Yee's did, in his centred, y-up image frame: ``x_c = parity·(x − cx)``,
 ``y_c = cy − y`` with ``cx, cy`` from ``camera.K`` (the parity flip un-mirrors a mirrored
 camera, so the sky is seen as from inside the sphere: north up, east left). Angles in the
 public signatures are degrees where the name says ``_deg``, as in the thesis's tables.
 
-The conventions marked [VERIFIED] in yee.md are followed exactly; the choices made where
-yee.md says [AMBIGUOUS] are marked "AMBIGUOUS:" in comments below.
+The conventions the thesis verifiably uses are followed exactly; the choices made where
+the thesis leaves open are marked "AMBIGUOUS:" in comments below.
 
 Example:
     >>> import numpy as np
@@ -88,19 +88,19 @@ YEE_MERGED_OFFSET = 10000
 
 @dataclass(frozen=True)
 class TriadParams:
-    """Tolerances of Yee's triad method; defaults are the Vega/Deneb/Sadr set (yee.md §2.13).
+    """Tolerances of Yee's triad method; defaults are the Vega/Deneb/Sadr set (Yee 1999 §4.2).
 
     Attributes:
         tol_sep_deg: pair matching, ``|θ_cat − θ_img| ≤ tol`` (also the final check).
         tol_rot_deg: the two rotation angles of a triad must agree within this.
         tol_encl_deg: every inner angle must agree within this; ``None`` disables the test
-            (Yee's fixed-point version B, yee.md AC-14).
+            (Yee's fixed-point version B, Yee 1999 §4.2.4).
         tol_group_deg: a triad joins the first group whose running mean rotation is this close.
         vote_number: minimum frequency of the winning candidate of a star (unique maximum).
         max_stars: only the first (brightest) image stars are used.
         cluster_radius_px: the detector's clustering radius τ; sets the default merge distance.
         merge_distance_deg: candidates of one image star closer than this are merged into
-            one "HR 1xxxx" candidate; ``None`` means ``max(τ·s_x, τ·s_y)`` (yee.md AC-07).
+            one "HR 1xxxx" candidate; ``None`` means ``max(τ·s_x, τ·s_y)`` (Yee 1999 §2.3.4.3).
         min_matches: fewest matched stars that count as an identification (the plate fit
             needs three).
 
@@ -134,10 +134,10 @@ class TriadParams:
 
     @classmethod
     def oedipus(cls) -> TriadParams:
-        """The OEDIPUS-C set (yee.md §4.6): "found through trial and error".
+        """The OEDIPUS-C set (Yee 1999 §4.3): "found through trial and error".
 
         The merge distance is the thesis's 0.8693°, τ = 15 px times the x scale of the
-        *uncorrected* 29.6716° FOV (yee.md App. D.1) — not τ times the corrected scale.
+        *uncorrected* 29.6716° FOV (Yee 1999 App. D.1) — not τ times the corrected scale.
         """
         return cls(
             tol_sep_deg=0.35, tol_rot_deg=10.0, tol_encl_deg=5.0, tol_group_deg=10.0,
@@ -232,7 +232,7 @@ def image_angle_deg(xy_from: ArrayLike, xy_to: ArrayLike) -> FloatArray:
     """Direction of the image vector ``from → to`` in [0, 360), counter-clockwise from +x.
 
     Raw pixel offsets in Yee's centred y-up frame, *not* scaled to degrees ([VERIFIED]
-    yee.md §2.6: scaling changes the thesis's rotation angles by up to 0.75°).
+    Yee 1999 §2.3.4.1: scaling changes the thesis's rotation angles by up to 0.75°).
 
     >>> round(float(image_angle_deg([0, 0], [-1, -1])), 6)
     225.0
@@ -341,7 +341,7 @@ def _cosine_rule_deg(a: FloatArray, b: FloatArray, c: FloatArray) -> FloatArray:
 
 @dataclass(frozen=True)
 class Triad:
-    """A catalogue triad that passed both tests (one row of yee.md T4.2).
+    """A catalogue triad that passed both tests (one row of Yee 1999 T4.2).
 
     ``stars``: image star indices (0-based, ascending); ``ids``: the catalogue ids assigned
     to them; ``rotation_deg``: rotation angles 1 and 2; ``mean_rotation_deg``: their circular
@@ -449,10 +449,11 @@ def identify_triads(
     params: TriadParams | None = None,
     db: SeparationDatabase | None = None,
 ) -> TriadResult:
-    """Identify image stars with Yee's triad method (yee.md §2.4–§2.9, flowcharts B.1–B.3).
+    """Identify image stars with Yee's triad method (Yee 1999 §2.3.4, flowcharts B.1–B.3).
 
     Args:
-        xy: (N, 2) DESIGN pixels, brightest first (an (N, 3) xy+flux array is accepted);
+        xy: (N, 2) pixels (docs/conventions.md), brightest first (an (N, 3) xy+flux array is
+            accepted);
             only the first ``params.max_stars`` are used.
         camera: gives the scales (1/fx, 1/fy), the centre (cx, cy) and the image
             separations (``camera.separation_rad``: Yee's Eq. 2.4 for the linear-angle model).
@@ -504,7 +505,7 @@ def identify_triads(
             (q, p) for p, q in zip(a.tolist(), b.tolist(), strict=True)
         }
 
-    # [INFERRED, yee.md §2.5] candidates in ascending catalogue id of HR1, then HR2, HR3;
+    # [INFERRED from Yee 1999 §2.3.4] candidates in ascending catalogue id of HR1, then HR2, HR3;
     # only the group numbering depends on it (through the running-mean grouping)
     rank = np.empty(len(catalog), dtype=np.int64)
     rank[np.argsort(catalog.ids, kind="stable")] = np.arange(len(catalog))
@@ -614,7 +615,7 @@ def _candidate_triads(
 def _join_group(mean: float, sums: list[list[float]], tol: float) -> int:
     """Index of the first group (creation order) whose running mean is within ``tol``.
 
-    [VERIFIED, yee.md §2.8] first match in creation order, against the running mean of the
+    [as Yee 1999 §2.3.4.2] first match in creation order, against the running mean of the
     members' mean rotations. AMBIGUOUS: mean as plain or circular average — circular here,
     so groups near 0°/360° work; within a 5–10° group the two differ by < 0.001°.
     """
@@ -670,7 +671,7 @@ def _vote(
 def _clusters(cands: list[int], catalog: Catalog, merge_deg: float) -> list[tuple[int, ...]]:
     """Groups (≥ 2) of candidates close enough to be imaged as one star, brightest first.
 
-    AMBIGUOUS (yee.md §2.9): how clusters of ≥ 3 form. Transitive linking (connected
+    AMBIGUOUS (Yee 1999 §2.3.4.3): how clusters of ≥ 3 form. Transitive linking (connected
     components of "separation ≤ merge distance") — it reproduces 17051 = {7051, 7053, 7054}.
     Brightest = smallest magnitude, ties to the smaller id.
     """
@@ -708,7 +709,7 @@ def _separation_check(
 ) -> dict[int, tuple[int, ...]]:
     """Final check (B.2): every matched pair's catalogue separation within ``tol_deg``.
 
-    AMBIGUOUS (yee.md §2.9 #4): a merged candidate passes if *any* member does — taken
+    AMBIGUOUS (Yee 1999 §2.3.4.3): a merged candidate passes if *any* member does — taken
     literally the thesis's own Vega result (17139–6872, Δ = 0.186°) would fail.
     AMBIGUOUS: which star to drop on a conflict. We drop, one at a time, the star in the
     most failing pairs (ties: the lower vote, then the fainter i.e. later image star), so a
@@ -734,7 +735,7 @@ def _separation_check(
 
 
 class PlateDivergenceError(RuntimeError):
-    """Yee's plate iteration did not converge (e.g. OEDIPUS-C image 24, yee.md AC-19)."""
+    """Yee's plate iteration did not converge (e.g. OEDIPUS-C image 24, Yee 1999 App. D)."""
 
 
 def _standard(ra: FloatArray, dec: FloatArray, ra0: float, dec0: float) -> tuple[

@@ -1,4 +1,4 @@
-"""Bleif's MusterPr matcher against tubsat.md §12 criteria 7–18 (catalogue, matching,
+"""Bleif's MusterPr matcher against docs/references.md#bleif-2004 (catalogue, matching,
 attitude, overlay) and the synthetic lost-in-space acceptance test of issue 18.
 
 Truth is independent of the matcher: attitudes are drawn at random, the Hipparcos stars
@@ -104,7 +104,7 @@ def test_catalogue_has_one_pattern_per_star_within_radius_sorted_and_capped(pc, 
     within = np.flatnonzero((pc.vectors @ pc.vectors[p] > math.cos(math.radians(20.0)))
                             & (np.arange(5000) != p))
     assert set(within.tolist()) == set(pc.members_of(p).tolist())
-    assert (pc.size == 150).any()  # the cap truncates dense regions (tubsat.md §5.4)
+    assert (pc.size == 150).any()  # the cap truncates dense regions (Bleif 2004 §4.2.4)
 
 
 def test_direction_angle_north_south_east_and_the_wrap():

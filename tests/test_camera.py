@@ -108,7 +108,7 @@ def test_non_square_pixels_give_both_fields_of_view():
 
 
 def test_renken_camera_matches_thesis_constants():
-    # renken.md AC-04: atan(0.023/25.84) = 0.0510°, FOV 384·0.051 ≈ 19.58°, 288·0.051 ≈ 14.69°
+    # Renken 1998 App. B: atan(0.023/25.84) = 0.0510°, FOV 384·0.051 ≈ 19.58°, 288·0.051 ≈ 14.69°
     cam = Camera.renken()
     scale_deg = np.degrees(1 / cam.K[0, 0])
     assert scale_deg == pytest.approx(0.0510, abs=1e-4)
@@ -126,14 +126,14 @@ def test_renken_camera_matches_thesis_constants():
 
 @pytest.mark.parametrize("name", list(IMAGES))
 def test_yee_separation_reproduces_published_tables(name):
-    # yee.md AC-06: scale = FOV/pixels and cos θ = cos χ cos ψ give T4.1, T4.6, T4.11 (±1e-4°)
+    # Yee 1999 Eq. 2.4: scale = FOV/pixels and cos θ = cos χ cos ψ give T4.1, T4.6, T4.11 (±1e-4°)
     w, h = IMAGES[name]["size"]
     cam = Camera.yee(w, h, *FOV_DEG)
     xy = np.array(to_pixels(name))
     for (i, j), published in IMAGES[name]["sep_deg"].items():
         ours = np.degrees(cam.separation_rad(xy[i - 1], xy[j - 1])[0])
         assert ours == pytest.approx(published, abs=1e-4), (name, i, j)
-    # N−1 instead of N pixels in the scale is measurably wrong (yee.md §2.3)
+    # N−1 instead of N pixels in the scale is measurably wrong (Yee 1999 §2.3.4)
     sx, sy = np.radians(FOV_DEG[0] / (w - 1)), np.radians(FOV_DEG[1] / (h - 1))
     worst = max(
         abs(np.degrees(yee_separation_rad(xy[i - 1], xy[j - 1], sx, sy)[0]) - p)

@@ -1,7 +1,7 @@
 """Tests for starid.catalog against independent truth.
 
-Truth used: Renken (1998) Tab. A.2 / Eq. A.5 / Eq. 6.46 (seeds/renken.md AC-01, AC-03, AC-06,
-AC-07), Yee (1999) App. D catalogue facts recomputed from BSC5 (seeds/yee.md §2.2), SIMBAD
+Truth used: Renken (1998) Tab. A.2 / Eq. A.5 / Eq. 6.46 (docs/references.md#renken-1998),
+Yee (1999) App. D catalogue facts recomputed from BSC5 (Yee 1999 §2.3.2), SIMBAD
 J2000 positions of Vega, Sirius and Polaris, the published proper motion of Barnard's star,
 BSC5 V magnitudes for the Hp → V estimate, and brute force for the geometry.
 

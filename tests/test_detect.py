@@ -21,7 +21,7 @@ from scipy.special import erf
 
 pytestmark = pytest.mark.opencv
 
-# Renken's segmentation (renken.md §3.5): a fixed threshold, no minimum size, no hot-pixel or
+# Renken's segmentation (Renken 1998 §5.2): a fixed threshold, no minimum size, no hot-pixel or
 # shape filter, unweighted centroids rounded to 0.1 px.
 RENKEN = dict(threshold=100, min_area=1, max_sharpness=None, max_elongation=None,
               centroid="unweighted")

@@ -60,7 +60,8 @@ def _frame(i: int, dtype: type = np.uint8) -> np.ndarray:
 
 def write_full_log(path: Path, n_frames: int = 6, chunk_size: int = 1024 * 1024
                    ) -> list[tuple[float, str, Any]]:
-    """Every DESIGN topic; returns what was written as (t_s, topic, payload) in write order."""
+    """Every topic of docs/concepts/log-topics.md; returns what was written as (t_s, topic,
+    payload) in write order."""
     written: list[tuple[float, str, Any]] = []
     k = np.array(CAMERA["K"])
     q_body_cam = np.array([0.5, 0.5, 0.5, 0.5])

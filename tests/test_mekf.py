@@ -81,7 +81,7 @@ def simulate(rng: np.random.Generator, n_runs: int, n_steps: int, dt: float = 1.
 
 def error_states(q_est: np.ndarray, b_est: np.ndarray, q_true: np.ndarray,
                  b_true: np.ndarray) -> np.ndarray:
-    """[δθ, δβ] rows with R_true = Exp(δθ) R_est (DESIGN.md), vectorised."""
+    """[δθ, δβ] rows with R_true = Exp(δθ) R_est (docs/conventions.md), vectorised."""
     dtheta = rot.log_map(rot.multiply(q_true, rot.inverse(q_est)))
     return np.concatenate([dtheta, b_true - b_est], axis=-1)
 

@@ -1,4 +1,4 @@
-"""The operator-in-the-loop API (tubsat.md §13, criterion 14's accept/reject) and
+"""The operator-in-the-loop API (docs/references.md#bleif-2004, criterion 14's accept/reject) and
 ``Solver(method="bleif")`` through the project's verification."""
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ def test_faithful_mode_finds_the_truth_and_flags_what_the_thesis_gets_wrong(pc, 
                 continue
             bs = float(rot.to_matrix(g.q_cam_icrs)[2] @ rot.to_matrix(q)[2])
             assert math.degrees(math.acos(min(1.0, bs))) < 0.1  # Dreibein: the boresight
-            # CalcAzimut's AZ belongs to the reference star (tubsat.md §5.7): either close
+            # CalcAzimut's AZ belongs to the reference star (Bleif 2004 §4.2.6): either close
             # or flagged because it misses a mark
             az = math.remainder(star_angles_from_q_cam_icrs(g.q_cam_icrs)[2]
                                 - star_angles_from_q_cam_icrs(q)[2], 2 * math.pi)

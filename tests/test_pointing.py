@@ -1,4 +1,4 @@
-"""Bleif's frames, star angles and manoeuvres (tubsat.md §12 criteria 1–6, 19–22).
+"""Bleif's frames, star angles and manoeuvres (docs/references.md#bleif-2004).
 
 The published numbers are the thesis's (Tab. 8.2, Eq. 4.3 deviations); the geometric
 checks compare against independent constructions (scipy rotations, a fine search, the
@@ -126,7 +126,7 @@ def test_legacy_z_then_x_reproduces_tab_8_2(start, z_deg, x_deg):  # criterion 5
 
 
 def test_tab_8_2_row_3_z_angle_erratum_is_recorded():
-    """Known discrepancy (tubsat.md §9.2, §11 item 14): the geometry gives 69.78°, the
+    """Known discrepancy (Bleif 2004 §8.1.2, a known erratum): the geometry gives 69.78°, the
     table prints 70.8° — kept as printed, not fitted."""
     q = q_cam_icrs_from_star_angles(*np.radians([60.24, -12.75, 221.27]))
     mz, _ = z_then_x(q, CASSIOPEIA)
@@ -147,7 +147,7 @@ def test_eq_4_3_deviation_of_the_tab_8_2_end_attitudes(end, dev):  # criterion 6
 
 @pytest.fixture(scope="module")
 def orbit():
-    # DLR-TUBSAT-like: sun-synchronous, ~720 km (tubsat.md §2.2 [INFERRED])
+    # DLR-TUBSAT-like: sun-synchronous, ~720 km (Bleif 2004 §2 [INFERRED])
     return Orbit.from_elements(datetime(2003, 2, 27, 22, 0, tzinfo=UTC), 720.0, 98.4,
                                150.0, 0.0)
 

@@ -1,5 +1,6 @@
 """Renken (1998) reproduced: windows, faithful ≡ indexed matching, mirror check,
-synthetic Cassiopeia (Tab. 6.3/6.4), affine attitude. Numbers from shared/seeds/renken.md."""
+synthetic Cassiopeia (Tab. 6.3/6.4), affine attitude. Numbers from the thesis
+(docs/references.md#renken-1998)."""
 
 from __future__ import annotations
 
@@ -346,7 +347,7 @@ def test_ac21_affine_attitude_round_trip_bounds():
 def test_eq_8_1_overweights_high_declinations():
     att = eq_8_1_attitudes(np.random.default_rng(0), 200_000)
     frac = np.mean(np.abs(np.degrees(att[:, 1])) > 60)
-    assert frac == pytest.approx(0.216, abs=0.005)  # renken.md §8.1: 21.6 % vs 13.4 %
+    assert frac == pytest.approx(0.216, abs=0.005)  # Renken 1998 §8: 21.6 % vs 13.4 %
     uni = eq_8_1_attitudes(np.random.default_rng(0), 200_000, uniform=True)
     assert np.mean(np.abs(np.degrees(uni[:, 1])) > 60) == pytest.approx(0.134, abs=0.005)
 

@@ -391,8 +391,8 @@ def test_three_star_frame_is_honestly_ambiguous_with_the_truth_among_candidates(
 
 
 def test_six_star_pattern_alone_is_enough_evidence(cam):
-    # renken.md: n = 6 makes even a 4480-star catalogue unique; with no further stars to
-    # check, the pattern's own improbability must carry the identification
+    # Renken 1998 §8 (docs/references.md): n = 6 makes even a 4480-star catalogue unique;
+    # with no further stars to check, the pattern's own improbability must carry the identification
     cat = starid.Catalog.hipparcos(mag_limit=5.0, epoch=2025.0)
     s = starid.Solver(cat, cam)
     rng = np.random.default_rng(8)

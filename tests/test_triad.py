@@ -1,6 +1,6 @@
 """Tests for starid.triad: Yee (1999) triad identification and plate pointing.
 
-Truth used: the thesis's tables as transcribed in seeds/yee.md (T2.1–T2.2, T3.1, T4.1–T4.12,
+Truth used: the thesis's tables (docs/references.md#yee-1999: T2.1–T2.2, T3.1, T4.1–T4.12,
 the §2.6 worked examples) and its acceptance criteria AC-01…AC-22; BSC5 (../shared) for the
 catalogue runs; for synthetic frames, the attitude they were rendered with.
 
@@ -189,7 +189,8 @@ def test_plate_pointing_recovers_gnomonic_centre_and_validates() -> None:
 
 
 def test_synthetic_field_identified_in_design_pixels() -> None:
-    """Pixels are y-down (DESIGN); a correct frame is identified with its true attitude."""
+    """Pixels are y-down (docs/conventions.md); a correct frame is identified with its true
+    attitude."""
     cam, q, xy, cat = _synthetic_field(seed=7)
     res = identify_triads(np.column_stack([xy, np.ones(len(xy))]), cam, cat)  # xy + flux
     assert res.ok, res.reason
@@ -220,7 +221,7 @@ def test_synthetic_mirror_rejected_unless_camera_says_mirrored() -> None:
 
 
 def test_enclosed_test_alone_does_not_reject_mirrors() -> None:
-    """Only the rotation test removes mirror images (yee.md §2.7): with it effectively off,
+    """Only the rotation test removes mirror images (Yee 1999 §2.3.4.1): with it effectively off,
     the mirrored triangles pass the inner-angle test."""
     cam, _, xy, cat = _synthetic_field(seed=7)
     flipped = xy.copy()
@@ -351,7 +352,7 @@ def test_ac11_deneb_triads_groups_votes_matches(results) -> None:
     assert sorted(got) == sorted(r[0] for r in yf.DENEB_T48)
     for row, r1, r2 in yf.DENEB_T48:
         assert got[row] == pytest.approx((r1, r2), abs=0.051), row
-    # T4.7: all groups but the two that yee.md traces to BSC4 vs BSC5 (thesis: 2 triads at
+    # T4.7: all groups but the two traced to BSC4 vs BSC5 (thesis: 2 triads at
     # 22.4° and 4 at 208.5°; BSC5: 5 at 208.7° and, created later, 1 at 21.4°)
     mine = [(len(g.triads), g.mean_rotation_deg) for g in res.groups]
     assert mine[1][0] == 5 and mine[1][1] == pytest.approx(208.7, abs=0.1)
@@ -398,7 +399,7 @@ def test_ac18_pointing_with_bsc5_and_wahba(results) -> None:
 @pytest.mark.shared
 def test_ac14_enclosed_test_disabled_keeps_matches(vega_set, results) -> None:
     """AC-14: without the enclosed-angle test (fixed-point version B) the matches are the same;
-    Vega 106 triads / 35 groups / largest 26, Deneb 828 triads / largest 56 (yee.md §2.7)."""
+    Vega 106 triads / 35 groups / largest 26, Deneb 828 triads / largest 56 (Yee 1999 §2.3.4.2)."""
     cat, db = vega_set
     off = TriadParams(tol_encl_deg=None)
     for name, (n_tri, n_big) in {"vega": (106, 26), "deneb": (828, 56)}.items():

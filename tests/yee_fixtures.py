@@ -1,6 +1,6 @@
-"""Published numbers from Yee (1999), transcribed from shared/seeds/yee.md §4 and §8.
+"""Published numbers from Yee (1999), transcribed from its tables (docs/references.md#yee-1999).
 
-Centroids (T4.14–T4.16) are pixels relative to the image centre, +y up (yee.md §2.1);
+Centroids (T4.14–T4.16) are pixels relative to the image centre, +y up (Yee 1999 §2.2);
 separations (T4.1, T4.6, T4.11) in degrees; the camera is Yee's linear-angle model with
 FOV 9.0130° × 6.9049° over each scanned image's size.
 """
@@ -43,13 +43,13 @@ IMAGES = {
 
 
 def to_pixels(name: str, center: tuple[float, float] | None = None) -> list[tuple[float, float]]:
-    """Yee's centred, y-up centroids as DESIGN.md pixels (origin top-left, y down)."""
+    """Yee's centred, y-up centroids as docs/conventions.md pixels (origin top-left, y down)."""
     w, h = IMAGES[name]["size"]
     cx, cy = center if center is not None else ((w - 1) / 2, (h - 1) / 2)
     return [(cx + x, cy - y) for x, y in IMAGES[name]["xy"]]
 
 
-# --- added for tests/test_triad.py (yee.md §4, §8; thesis numbers unless said otherwise) -----
+# --- added for tests/test_triad.py (Yee 1999 Ch. 4; thesis numbers unless said otherwise) -----
 
 #: T4.1, T4.6, T4.11: catalogue pairs within ±0.15° per image pair (1-based stars), BSC4.
 PAIR_COUNTS = {
@@ -66,7 +66,8 @@ PAIR_COUNTS = {
 
 #: T4.5 / T4.10 and §2.12: the plate solution. "catalog" are the thesis's (BSC4) coordinates
 #: of the matched stars in image-star order, "calculated" their back-projections (degrees);
-#: "initial" the linear-regression start and "iterations" from yee.md AC-19.
+#: "initial" the linear-regression start and "iterations" from Yee 1999 §4.2 (3 for Vega and
+#: Deneb).
 PLATE = {
     "vega": {
         "center": (278.45703, 37.24007), "initial": (278.7448, 37.5036), "iterations": 3,
@@ -130,7 +131,8 @@ DENEB_T47 = [
 ]
 
 #: T4.8: Deneb group 1, (HR per image star 1–9), rot 1, rot 2. Row 11 corrected per the
-#: yee.md erratum: image stars 2, 4, 8 = 7735, 7977, 8003 (the printed extra "8001" dropped).
+#: An erratum of Yee 1999 (docs/references.md#yee-1999): image stars 2, 4, 8 = 7735, 7977,
+#: 8003 (the printed extra "8001" dropped).
 DENEB_T48 = [
     ((0, 0, 0, 0, 0, 7851, 8001, 8003, 0), 60.7, 60.4),
     ((0, 0, 0, 0, 7844, 0, 8001, 8003, 0), 60.6, 60.5),
@@ -182,7 +184,8 @@ ROTATION_EXAMPLES = {
     (1063, 969, 1001): {"catalog_deg": (36.2, 22.2), "rotation_deg": (222.9, 199.4)},
 }
 
-#: yee.md §8.4: BSC5 J2000 RA/Dec (degrees) of stars used in the unit tests without bsc5.dat.
+#: From BSC5, not the thesis: J2000 RA/Dec (degrees) of stars the unit tests use without
+#: bsc5.dat.
 BSC5_RADEC = {
     7001: (279.23458, 38.78361), 7139: (283.62583, 36.89889), 7056: (281.19333, 37.60500),
     1063: (53.03583, 48.02361), 969: (49.05083, 50.93778), 1001: (50.46917, 49.07083),

@@ -65,7 +65,7 @@ class SimulationCell:
 
 def renken_catalog(mag_limit: float, epoch: float = 2000.0, merge_px: float = 2.0):
     """An "SAO-like" catalogue for the simulation: Hipparcos with close pairs merged
-    (faint stars included, renken.md §8.1) and cut to the brightest ``SAO_COUNTS`` objects
+    (faint stars included, Renken 1998 §8) and cut to the brightest ``SAO_COUNTS`` objects
     (SAO photometry runs ~0.15 mag fainter than V, so equal counts reproduce his
     catalogues better than equal limits — see tests/test_renken.py AC-17).
 

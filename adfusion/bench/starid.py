@@ -4,7 +4,7 @@ Random attitudes (seeded) give synthetic centroid lists; our solver (:class:`sta
 Solver`) and the peers — ``tetra3rs`` (Rust, PyPI, the ``bench`` extra) and ``cedar-solve``
 (Python, pins numpy<2, so it runs in its own venv behind a JSON-lines subprocess worker) — see
 the **same** centroid lists in the same run. Per condition and solver it reports the figures
-the star-tracker literature uses (DESIGN.md "Benchmarks"):
+the star-tracker literature uses (docs/benchmarks.md):
 
 * **availability** — % of frames with a *correct* attitude accepted. Correct means: no point
   of the frame (corners, centre) lands more than ``max(tol_px, tol_sigma·σ)`` (default
@@ -201,8 +201,8 @@ CONDITIONS: dict[str, Condition] = {
 class Frame:
     """One synthetic frame: the truth and the centroid list every solver sees.
 
-    ``xy`` is (N, 2), brightest (observed) first, pixel centres (DESIGN.md); ``cat_ids`` holds
-    the HIP number of each row, −1 for a false star.
+    ``xy`` is (N, 2), brightest (observed) first, pixel centres (docs/conventions.md);
+    ``cat_ids`` holds the HIP number of each row, −1 for a false star.
     """
 
     condition: str

@@ -1,7 +1,7 @@
 """Multiplicative extended Kalman filter (MEKF) for attitude and gyro bias.
 
-The estimator of DESIGN.md: a unit quaternion ``q_body_icrs`` and a gyro bias are the state;
-the filter carries a 6-dimensional *error* state in the convention fixed there —
+The estimator of docs/concepts/filter.md: a unit quaternion ``q_body_icrs`` and a gyro bias
+are the state; the filter carries a 6-dimensional *error* state in the convention fixed there —
 
 * attitude error δθ in the **body** frame, ``R_body_icrs_true = Exp(δθ) · R_body_icrs_est``,
 * gyro bias error ``β_true − β_est`` (rad/s),
@@ -240,7 +240,7 @@ def _sigma3(value: ArrayLike, what: str) -> Array:
 
 
 class AttitudeFilter:
-    """The interface MEKF and UKF share (DESIGN.md's step-by-step estimator).
+    """The interface MEKF and UKF share (docs/concepts/filter.md).
 
     Holds what does not depend on the filter algorithm: the reference quaternion, the
     body-to-camera mounting, input validation, the NIS gate and the camera-frame helpers.

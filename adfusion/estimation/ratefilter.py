@@ -5,7 +5,7 @@ follows a constant-rate model driven by a random walk of spectral density
 ``q = sigma_rate_walk_rad_s_sqrt_s²`` (rad²/s³). The 6-dimensional error state is
 
 * attitude error δθ in the **body** frame, ``R_body_icrs_true = Exp(δθ) · R_body_icrs_est``
-  (DESIGN.md),
+  (docs/conventions.md),
 * rate error ``δω = ω_true − ω̂`` (rad/s, body frame),
 
 and ``P`` (6×6) is in that order. From ``Ṙ_body_icrs = −[ω]× R_body_icrs`` with

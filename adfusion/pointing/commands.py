@@ -1,4 +1,6 @@
-"""Slew-command bookkeeping of Bleif's manoeuvre window (tubsat.md §6.5, §7.2).
+"""Slew-command bookkeeping of Bleif's manoeuvre window (Bleif 2004 §5.2.2, §6).
+
+The thesis: docs/references.md#bleif-2004.
 
 Each partial manoeuvre has a computed angle and three buttons: **send** (transmit the
 angle command and couple the slew into the attitude model), **re-send** (transmit again

@@ -1,4 +1,6 @@
-"""Drift budget of a single star fix (tubsat.md §9.1): how long the pointing stays good.
+"""Drift budget of a single star fix (Bleif 2004 §8.1.1): how long the pointing stays good.
+
+The thesis: docs/references.md#bleif-2004.
 
 Between Bleif's star fix and the target only the gyro-held angle loops carry the
 attitude, and their drift (Tab. 8.1: 0.51, 0.26, 0.79 °/min about X_S, Y_S, Z_S after

@@ -1,4 +1,6 @@
-"""One night pass as in Bleif's 27.02.2003 example (tubsat.md §7.3), end to end.
+"""One night pass as in Bleif's 27.02.2003 example (Bleif 2004 §6.2), end to end.
+
+The thesis: docs/references.md#bleif-2004.
 
 Before contact the best time over the target is computed; at first contact the satellite
 is held inertially and takes a star image (:func:`adfusion.sensors.tubsat.star_blocks`);

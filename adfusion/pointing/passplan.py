@@ -1,5 +1,6 @@
-"""Pass planning (tubsat.md §6.2–§6.4): where the satellite is, where the target is, the
-best time to record, and the slews that point the boresight there at that time.
+"""Pass planning (Bleif 2004 §5.2.1, docs/references.md#bleif-2004): where the satellite is,
+where the target is, the best time to record, and the slews that point the boresight there
+at that time.
 
 * :class:`Orbit` — SGP4 (the ``sgp4`` package) from a TLE or from mean elements; positions
   in the TEME frame, which the thesis (and its SGP4 library) used as the inertial frame Q;

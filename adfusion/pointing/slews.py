@@ -1,4 +1,6 @@
-"""Body-axis slews between star angles (tubsat.md §3.4, §6.4): Bleif's manoeuvre formulas.
+"""Body-axis slews between star angles (Bleif 2004 §5.1.3, Eq. 5.23–5.28): his manoeuvres.
+
+The thesis: docs/references.md#bleif-2004.
 
 DLR-TUBSAT's attitude control turns about one body axis at a time, so a re-pointing is a
 sequence of single-axis slews. Axes are the satellite frame S of

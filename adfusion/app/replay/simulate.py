@@ -1,6 +1,6 @@
 """Record a simulated flight: a :mod:`adfusion.sensors.scenarios` stream into an MCAP log
-with the DESIGN topics (the run configuration as metadata, the camera model as an
-attachment) — the input :func:`adfusion.app.replay.replay` takes.
+with the topics of docs/concepts/log-topics.md (the run configuration as metadata, the camera
+model as an attachment) — the input :func:`adfusion.app.replay.replay` takes.
 
 Example:
     >>> import os, tempfile

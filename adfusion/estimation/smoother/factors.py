@@ -45,7 +45,8 @@ def robust_noise(base, kind: str, k: float):
 
 
 def wnoa_factor(keys: list[int], dt: float, q: float):
-    """White-noise-on-acceleration prior between (R_i, ω_i) and (R_j, ω_j): module docstring."""
+    """White-noise-on-acceleration prior between (R_i, ω_i) and (R_j, ω_j)
+    (docs/concepts/smoother.md)."""
     import gtsam
 
     i3 = np.eye(3)

@@ -58,7 +58,7 @@ class SmootherInput:
         q_body_cam: camera mounting (camera → body), to turn camera vectors into body ones.
         arw_rad_sqrt_s, rrw_rad_s_sqrt_s: gyro angle and rate random walk.
         sigma_mag_rad: 1σ direction error of a magnetometer sample.
-        video_only: no gyro — the smoother estimates the body rate (module docstring).
+        video_only: no gyro — the smoother estimates the body rate (docs/concepts/smoother.md).
 
     Example:
         >>> inp = SmootherInput(video_only=True)

@@ -52,7 +52,8 @@ def smooth(
     max_iterations: int = 100,
     covariances: bool = True,
 ) -> SmoothResult:
-    """Smooth a recorded log: one state per frame, all measurements at once (module docstring).
+    """Smooth a recorded log: one state per frame, all measurements at once
+    (docs/concepts/smoother.md).
 
     Args:
         inp: the recording.
