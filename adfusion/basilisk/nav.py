@@ -1,0 +1,227 @@
+"""adfusion as a Basilisk flight-software module: gyro + magnetometer + star camera (or
+Basilisk's quaternion star tracker) → :class:`adfusion.Estimator` → ``NavAttMsg``.
+
+:class:`AdfusionNav` runs in a Basilisk task. Each call it takes what is new since the last:
+
+* ``imuInMsg`` (``IMUSensorMsg``): the platform rate ``AngVelPlatform`` turned into the body
+  frame (``dcm_PB``) — a gyro step of the estimator at the message's write time;
+* a camera frame from a :class:`adfusion.basilisk.camera.StarCameraModule` (``camera``):
+  detection → identification (tracking from the filter's cone, lost-in-space fallback,
+  both inside :meth:`adfusion.Estimator.step`) → MEKF update. With ``earth_keepout_deg`` and
+  ``navTransInMsg`` (the position, ``NavTransMsg``), frames the *estimated* boresight says
+  are blinded by the Earth are not used (recorded as rejected, not counted as misses, so the
+  first frame after an outage is tracked from the gyro-propagated cone);
+* or ``stInMsg`` (``STSensorMsg``, Basilisk's ``starTracker``): ``qInrtl2Case`` through the
+  case mounting ``dcm_CB`` as an attitude update of ``st_sigma_rad`` per axis;
+* ``tamInMsg`` (``TAMSensorMsg``) with ``magFieldInMsg`` (``MagneticFieldMsg``, the model
+  field in N): a direction update (the sensor frame through ``dcm_SB``).
+
+It then propagates to the call time and writes ``navAttOutMsg`` (``NavAttMsg``: ``sigma_BN``,
+``omega_BN_B`` = gyro − estimated bias) and ``filtDataOutMsg`` (``InertialFilterMsg``:
+``state`` = [sigma_BN, bias (rad/s)], ``covar`` = the filter's 6×6 covariance of [attitude
+error (rad, body axes), bias (rad/s)], ``numObs`` = measurements used this call).
+
+Every step's :class:`adfusion.estimator.StepRecord` is kept in ``records`` (with the frame's
+truth) when ``keep_records``; ``cost_s`` keeps each call's wall time by kind for benchmarks
+(never written to logs: a log must be identical for a seed).
+
+Example (a gyro-only module in a bare Basilisk simulation, written IMU messages):
+    >>> from Basilisk.architecture import messaging
+    >>> from Basilisk.utilities import SimulationBaseClass, macros
+    >>> sim = SimulationBaseClass.SimBaseClass()
+    >>> sim.CreateNewProcess("p").addTask(sim.CreateNewTask("t", macros.sec2nano(0.1)))
+    >>> nav = AdfusionNav(q_body_icrs0=[1.0, 0.0, 0.0, 0.0])
+    >>> imu = messaging.IMUSensorMsgPayload()
+    >>> imu.AngVelPlatform = [0.0, 0.0, 0.01]
+    >>> imu_msg = messaging.IMUSensorMsg().write(imu)
+    >>> nav.imuInMsg.subscribeTo(imu_msg)
+    >>> sim.AddModelToTask("t", nav)
+    >>> sim.InitializeSimulation()
+    >>> sim.ConfigureStopTime(macros.sec2nano(1.0))
+    >>> sim.ExecuteSimulation()
+    >>> out = nav.navAttOutMsg.read()
+    >>> round(float(np.degrees(4 * np.arctan(np.linalg.norm(out.sigma_BN)))), 3)
+    0.573
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from Basilisk.architecture import messaging, sysModel
+from numpy.typing import ArrayLike
+
+from adfusion.basilisk.camera import earth_limb_angle_rad
+from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn, sigma_bn_from_q_body_icrs
+from adfusion.estimator import Estimator, StepRecord
+from starid import rotations as rot
+
+__all__ = ["AdfusionNav"]
+
+
+class AdfusionNav(sysModel.SysModel):
+    """Basilisk module wrapping :class:`adfusion.Estimator` (see the module docstring).
+
+    Args:
+        solver: a :class:`starid.Solver` for the camera (None: no camera).
+        camera: the :class:`StarCameraModule` whose frames to use (None: none).
+        q_body_cam: the camera mounting as the flight software knows it.
+        q_body_icrs0, sigma_attitude0_rad: a prior attitude (otherwise the first star fix
+            or star-tracker quaternion initialises the filter).
+        st_sigma_rad: 1-σ per-axis error of the star tracker's quaternion.
+        earth_keepout_deg: skip frames whose estimated boresight has the Earth's limb this
+            close (needs ``navTransInMsg``).
+        keep_records: keep every step's record in :attr:`records`.
+        estimator_kw: passed to :class:`adfusion.Estimator` (gyro noise, gates, ...).
+    """
+
+    def __init__(self, solver=None, camera=None, q_body_cam: ArrayLike = rot.IDENTITY, *,
+                 q_body_icrs0: ArrayLike | None = None, sigma_attitude0_rad: float = 0.02,
+                 st_sigma_rad: float = 1e-4, earth_keepout_deg: float | None = None,
+                 keep_records: bool = True, **estimator_kw: Any) -> None:
+        super().__init__()
+        self.ModelTag = "adfusionNav"
+        self.imuInMsg = messaging.IMUSensorMsgReader()
+        self.tamInMsg = messaging.TAMSensorMsgReader()
+        self.magFieldInMsg = messaging.MagneticFieldMsgReader()
+        self.stInMsg = messaging.STSensorMsgReader()
+        self.navTransInMsg = messaging.NavTransMsgReader()
+        self.navAttOutMsg = messaging.NavAttMsg()
+        self.filtDataOutMsg = messaging.InertialFilterMsg()
+        self.dcm_PB = np.eye(3)  # IMU platform from body
+        self.dcm_SB = np.eye(3)  # magnetometer sensor from body
+        self.dcm_CB = np.eye(3)  # star-tracker case from body
+        self.solver = solver
+        self.camera = camera
+        self.q_body_cam = rot.canonical(rot.normalize(q_body_cam))
+        self.R_body_cam = rot.to_matrix(self.q_body_cam)
+        self.st_sigma_rad = float(st_sigma_rad)
+        self.earth_keepout_rad = None if earth_keepout_deg is None else \
+            float(np.radians(earth_keepout_deg))
+        self.keep_records = bool(keep_records)
+        self._est_kw = dict(estimator_kw)
+        self._q0 = None if q_body_icrs0 is None else rot.normalize(q_body_icrs0)
+        self._sigma0 = float(sigma_attitude0_rad)
+        self.Reset(0)
+
+    # --- Basilisk interface ------------------------------------------------------------
+
+    def Reset(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803 (Basilisk's names)
+        self.est = Estimator(self.solver, self.q_body_cam, q_body_icrs0=self._q0,
+                             sigma_attitude0_rad=self._sigma0, **self._est_kw)
+        self._seen = {"imu": -1, "st": -1, "tam": -1, "frame": -1}
+        self._gyro_body = None
+        self.records: list[dict[str, Any]] = []
+        self.cost_s: dict[str, list[float]] = {"gyro": [], "frame": [], "st": [], "idle": []}
+
+    def UpdateState(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803
+        t0 = time.perf_counter()
+        kind = "idle"
+        t_now = CurrentSimNanos * 1e-9
+        n_obs = 0
+        if self.imuInMsg.isLinked() and self.imuInMsg.isWritten():
+            tw = self.imuInMsg.timeWritten()
+            if tw != self._seen["imu"]:
+                self._seen["imu"] = tw
+                w_p = np.asarray(self.imuInMsg().AngVelPlatform, dtype=np.float64)
+                self._gyro_body = self.dcm_PB.T @ w_p
+                self._keep(self.est.step(tw * 1e-9, gyro=self._gyro_body))
+                kind = "gyro"
+        if self.camera is not None and self.camera.latest is not None:
+            fr = self.camera.latest
+            if fr.index != self._seen["frame"]:
+                self._seen["frame"] = fr.index
+                self._frame_step(fr)
+                kind = "frame"
+                n_obs += self.records[-1]["rec"].fix_accepted if self.keep_records else 0
+        if self.stInMsg.isLinked() and self.stInMsg.isWritten():
+            tw = self.stInMsg.timeWritten()
+            if tw != self._seen["st"]:
+                self._seen["st"] = tw
+                n_obs += self._st_step(tw * 1e-9, np.asarray(self.stInMsg().qInrtl2Case))
+                kind = "st" if kind == "idle" else kind
+        if (self.tamInMsg.isLinked() and self.tamInMsg.isWritten()
+                and self.magFieldInMsg.isLinked() and self.magFieldInMsg.isWritten()):
+            tw = self.tamInMsg.timeWritten()
+            if tw != self._seen["tam"]:
+                self._seen["tam"] = tw
+                b_body = self.dcm_SB.T @ np.asarray(self.tamInMsg().tam_S, dtype=np.float64)
+                b_n = np.asarray(self.magFieldInMsg().magField_N, dtype=np.float64)
+                rec = self.est.step(tw * 1e-9, mag=(b_body, b_n))
+                n_obs += "mag" in rec.sensors and "mag" not in dict(rec.rejected)
+                self._keep(rec)
+        if self.est.t is None or t_now > self.est.t:
+            self.est.step(t_now)
+        self._write(CurrentSimNanos, n_obs)
+        self.cost_s[kind].append(time.perf_counter() - t0)
+
+    # --- pieces ------------------------------------------------------------------------
+
+    def _frame_step(self, fr) -> None:
+        t = fr.t_ns * 1e-9
+        if self.earth_keepout_rad is not None and self.est.initialized \
+                and self.navTransInMsg.isLinked():
+            q = rot.multiply(rot.inverse(self.q_body_cam), self.est.filter.q_body_icrs)
+            limb = earth_limb_angle_rad(rot.to_matrix(q)[2], self.navTransInMsg().r_BN_N)
+            if limb < self.earth_keepout_rad:
+                rec = self.est.step(t)
+                rec.rejected.append(("camera", f"Earth's limb {np.degrees(limb):.1f}° from "
+                                               "the boresight, inside the keep-out: frame "
+                                               "not used"))
+                self._keep(rec, fr)
+                return
+        self._keep(self.est.step(t, frame=fr.image), fr)
+
+    def _st_step(self, t: float, q_inrtl2case: np.ndarray) -> int:
+        # Basilisk's β_CN is the conjugate of q_case_icrs (see frames.py)
+        q_case_icrs = rot.canonical(rot.conjugate(rot.normalize(q_inrtl2case)))
+        q_body_icrs = rot.multiply(rot.from_matrix(self.dcm_CB.T), q_case_icrs)
+        cov = self.st_sigma_rad**2 * np.eye(3)
+        if not self.est.initialized:
+            self._q0 = q_body_icrs
+            self.est = Estimator(self.solver, self.q_body_cam, q_body_icrs0=q_body_icrs,
+                                 sigma_attitude0_rad=3 * self.st_sigma_rad, **self._est_kw)
+            rec = self.est.step(t, gyro=self._gyro_body)
+            rec.sensors.append("star tracker")
+            self._keep(rec)
+            return 1
+        rec = self.est.step(t)
+        res = self.est.filter.update_attitude(q_body_icrs, cov)
+        rec.sensors.append("star tracker")
+        rec.nis["star tracker"] = float(res.nis)
+        if not res.accepted:
+            rec.rejected.append(("star tracker", res.reason))
+        rec.fix_accepted = bool(res.accepted)
+        rec.q_body_icrs = np.array(self.est.filter.q_body_icrs)
+        self._keep(rec)
+        return int(res.accepted)
+
+    def _keep(self, rec: StepRecord, frame=None) -> None:
+        if self.keep_records:
+            self.records.append({"rec": rec, "frame": frame,
+                                 "P": None if self.est.filter is None
+                                 else np.array(self.est.filter.P)})
+
+    def _write(self, t_ns: int, n_obs: int) -> None:
+        att = messaging.NavAttMsgPayload()
+        filt = messaging.InertialFilterMsgPayload()
+        att.timeTag = filt.timeTag = t_ns * 1e-9
+        f = self.est.filter
+        if f is not None:
+            sigma = sigma_bn_from_q_body_icrs(f.q_body_icrs)
+            bias = np.asarray(f.bias_rad_s, dtype=np.float64)
+            att.sigma_BN = sigma.tolist()
+            if self._gyro_body is not None:
+                att.omega_BN_B = (self._gyro_body - bias).tolist()
+            filt.state = [*sigma.tolist(), *bias.tolist()]
+            filt.covar = np.asarray(f.P, dtype=np.float64).reshape(-1).tolist()
+        filt.numObs = int(n_obs)
+        self.navAttOutMsg.write(att, t_ns, self.moduleID)
+        self.filtDataOutMsg.write(filt, t_ns, self.moduleID)
+
+    @staticmethod
+    def q_body_icrs(payload) -> np.ndarray:
+        """``q_body_icrs`` of a ``NavAttMsgPayload`` / ``SCStatesMsgPayload``."""
+        return q_body_icrs_from_sigma_bn(payload.sigma_BN)
