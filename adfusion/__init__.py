@@ -20,19 +20,19 @@ __version__ = "0.1.0"
 # Loaded on first use (PEP 562), so `adfusion --help` and light scripts do not pay for
 # OpenCV, SciPy and filterpy at import time.
 _LAZY = {
-    "Estimator": "adfusion.estimator",
-    "StepRecord": "adfusion.estimator",
-    "MEKF": "adfusion.mekf",
-    "UpdateResult": "adfusion.mekf",
-    "RateMEKF": "adfusion.ratefilter",
-    "UKF": "adfusion.ukf",
+    "Estimator": "adfusion.estimation.estimator",
+    "StepRecord": "adfusion.estimation.estimator",
+    "MEKF": "adfusion.estimation.mekf",
+    "UpdateResult": "adfusion.estimation.mekf",
+    "RateMEKF": "adfusion.estimation.ratefilter",
+    "UKF": "adfusion.estimation.ukf",
 }
 
 if TYPE_CHECKING:  # pragma: no cover
-    from adfusion.estimator import Estimator, StepRecord
-    from adfusion.mekf import MEKF, UpdateResult
-    from adfusion.ratefilter import RateMEKF
-    from adfusion.ukf import UKF
+    from adfusion.estimation.estimator import Estimator, StepRecord
+    from adfusion.estimation.mekf import MEKF, UpdateResult
+    from adfusion.estimation.ratefilter import RateMEKF
+    from adfusion.estimation.ukf import UKF
 
 
 def __getattr__(name: str):

@@ -42,7 +42,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from starid.detect import detect
+from adfusion.starid.detect import detect
 
 try:
     import tetra3rs

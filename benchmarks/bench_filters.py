@@ -12,7 +12,8 @@ magnetometer direction update:
   with the field direction in the accelerometer slot and its reference set to the current
   ICRS field direction each step (it has no other way to take a moving reference);
 * ``filterpy_ekf`` — a plain ``filterpy.kalman.ExtendedKalmanFilter`` with the same 6-state
-  error model (Φ and Q from :mod:`adfusion.mekf`, the same quaternion arithmetic and reset),
+  error model (Φ and Q from :mod:`adfusion.estimation.mekf`, the same quaternion arithmetic
+  and reset),
   so the difference to ``mekf`` is the Kalman machinery alone.
 
 Timing rounds are interleaved (each round runs every filter over the whole data, in rotating
@@ -25,7 +26,7 @@ of each filter on the data.
 Replay throughput (:func:`replay_throughput`, ``--replay-duration S``; 0 skips it): an
 OEDIPUS-C-like flight (``sensors.scenarios.oedipus``, 30 fps, 200 Hz gyro, magnetometer)
 simulated into an MCAP log — rendered intensified frames, and centroid-only — then replayed
-through ``adfusion.pipeline.replay`` (detection, identification, MEKF, MCAP writing):
+through ``adfusion.app.pipeline.replay`` (detection, identification, MEKF, MCAP writing):
 frames per second end to end and the attitude error against the log's truth.
 
 Usage (from the repository root)::
@@ -56,7 +57,9 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.mekf import (
+from adfusion.starid import rotations as rot
+
+from adfusion.estimation.mekf import (
     MEKF,
     _qexp,
     _qmul,
@@ -66,8 +69,7 @@ from adfusion.mekf import (
     process_noise,
     transition_matrix,
 )
-from adfusion.ukf import UKF
-from starid import rotations as rot
+from adfusion.estimation.ukf import UKF
 
 try:
     from ahrs.filters import EKF as AhrsEKF
@@ -233,8 +235,9 @@ def replay_throughput(duration_s: float = 20.0, seed: int = 0) -> dict[str, Any]
     frames/s end to end, identified frames, attitude error vs truth (deg)."""
     import tempfile
 
-    from adfusion.pipeline import replay, simulate
-    from sensors.scenarios import oedipus
+    from adfusion.sensors.scenarios import oedipus
+
+    from adfusion.app.pipeline import replay, simulate
 
     out: dict[str, Any] = {"scenario": f"oedipus, {duration_s:g} s, seed {seed}"}
     with tempfile.TemporaryDirectory(prefix="adfusion-bench-") as tmp:

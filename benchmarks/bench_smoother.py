@@ -35,15 +35,15 @@ import time
 from typing import Any
 
 import numpy as np
+from adfusion.sensors import scenarios
+from adfusion.starid import rotations as rot
+from adfusion.starid.catalog import Catalog
+from adfusion.starid.solver import Solver
 from scipy.stats import chi2
 
-from adfusion.estimator import Estimator
-from adfusion.faults import WrongMatchInjector
-from adfusion.smoother import SmootherInput, smooth
-from sensors import scenarios
-from starid import rotations as rot
-from starid.catalog import Catalog
-from starid.solver import Solver
+from adfusion.estimation.estimator import Estimator
+from adfusion.estimation.faults import WrongMatchInjector
+from adfusion.estimation.smoother import SmootherInput, smooth
 
 
 def _attitude_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:

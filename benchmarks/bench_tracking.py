@@ -36,12 +36,13 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-import starid
-from adfusion.bench_starid import frame_error_px
-from adfusion.estimator import Estimator
-from sensors.scenarios import oedipus
-from starid import rotations as rot
-from starid.solver import Prior, Solver
+from adfusion.sensors.scenarios import oedipus
+from adfusion.starid import rotations as rot
+from adfusion.starid.solver import Prior, Solver
+
+from adfusion import starid
+from adfusion.bench.starid import frame_error_px
+from adfusion.estimation.estimator import Estimator
 
 # a fix is correct when no corner or the centre of the frame moves by more than this
 # (bench_starid's criterion: single fixes of these blurred, spinning frames are off by up

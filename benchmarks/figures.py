@@ -44,7 +44,7 @@ def _machine(doc: dict[str, Any]) -> str:
 
 
 def sweep_section(doc: dict[str, Any], command: str) -> str:
-    from adfusion import bench_sweep
+    from adfusion.bench import sweep as bench_sweep
 
     c, cfg, s = doc["campaign"], doc["config"], doc["summary"]
     n_points = sum(len(sw["points"]) for sw in doc["sweeps"])
@@ -189,7 +189,7 @@ def filters_section(doc: dict[str, Any], command: str) -> str:
                      f"{rms[n]:.4f} | {doc['final_err_deg'][n]:.4f} |")
     rp = doc.get("replay")
     if rp:
-        lines += ["", f"Replay throughput ({rp['scenario']}, `adfusion.pipeline.replay`: "
+        lines += ["", f"Replay throughput ({rp['scenario']}, `adfusion.app.pipeline.replay`: "
                   "detection, identification, MEKF, MCAP writing):", ""]
         for k, label in (("rendered", "rendered intensified frames"),
                          ("centroids", "centroid-only log")):
@@ -260,14 +260,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--readme", default=str(ROOT / "README.md"))
     args = p.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    from starid.cache import cache_dir
+    from adfusion.starid.cache import cache_dir
 
     store = cache_dir() or RESULTS  # partial files: outside the checkout when possible
     run = set() if args.from_json else {s.strip() for s in args.only.split(",")}
     sweep_cmd = "adfusion bench sweep" + ("" if args.full else " --quick") + \
         ("" if args.trials == 1000 else f" --trials {args.trials}")
     if "sweep" in run:
-        from adfusion import bench_sweep
+        from adfusion.bench import sweep as bench_sweep
 
         cfg = bench_sweep.SweepConfig(
             quick=not args.full, trials=args.trials, workers=args.workers,

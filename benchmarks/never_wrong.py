@@ -20,8 +20,7 @@ import numpy as np
 
 
 def run_chunk(job: tuple[int, int, float, float]) -> dict:
-    import starid
-
+    from adfusion import starid
     seed, n_frames, fov, mag = job
     cat = starid.Catalog.hipparcos(mag_limit=mag, epoch=2025.0)
     cam = starid.Camera.pinhole(1024, 768, fov)

@@ -34,8 +34,7 @@ def best_p_false(sol) -> float:
 
 def run(frames: int, n_min: int, n_max: int, seed: int = 12345,
         mag_limit: float = 6.0, fov_deg: float = 15.0) -> dict:
-    import starid
-
+    from adfusion import starid
     cat = starid.Catalog.hipparcos(mag_limit=mag_limit, epoch=2025.0)
     cam = starid.Camera.pinhole(1024, 768, fov_x_deg=fov_deg)
     solver = starid.Solver(cat, cam, centroid_sigma_px=0.5)

@@ -1,7 +1,8 @@
 """Renken (1998) §8 reproduced: η and multiple matches for every (magnitude limit, tolerance).
 
 His full simulation grid — 7 catalogues (V < 3.0 … 6.0) × 3 pair tolerances (0.1°, 0.2°,
-0.3°), 2000 frames each, his 384×288 camera at 0.051°/px (``starid.renken.simulate_cell``:
+0.3°), 2000 frames each, his 384×288 camera at 0.051°/px
+(``adfusion.bench.renken_sim.simulate_cell``:
 Eq. 8.1 attitudes, equidistant projection, SAO-count-matched Hipparcos merged at 2 px) —
 printed as a markdown table next to his published figures (renken.md §8.2, from Tab.
 8.1–8.28): η, the multiple-match rate and the share of frames with fewer than 3 stars.
@@ -11,7 +12,7 @@ including the 2-star frames, whose "pattern" is one pair (every catalogue pair i
 distance window is a match); ``simulate_cell`` stops at < 3 stars, so the 2-star frames are
 counted here (:func:`two_star_counts`) on the same attitudes.
 
-The cells run as a campaign on ``dask.distributed`` (:mod:`adfusion.campaign`): tasks are
+The cells run as a campaign on ``dask.distributed`` (:mod:`adfusion.bench.campaign`): tasks are
 (cell, chunk of frames), each chunk seeded from ``(seed, cell, chunk)``, so the table is the
 same for any number of workers; ``--workers 0`` runs serially without dask.
 
@@ -41,9 +42,10 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion import campaign
-from starid import rotations as rot
-from starid.renken import PUBLISHED_ETA, eq_8_1_attitudes, renken_catalog, simulate_cell
+from adfusion.starid import rotations as rot
+
+from adfusion.bench import campaign
+from adfusion.bench.renken_sim import PUBLISHED_ETA, eq_8_1_attitudes, renken_catalog, simulate_cell
 
 TOLERANCES = (0.1, 0.2, 0.3)
 
@@ -68,7 +70,7 @@ _FIELDS = ("clear", "fewer_than_3", "miss", "unique", "multiple", "wrong_unique"
 
 def _catalog_and_index(mag: float, merge_px: float):
     """The cell's catalogue and pattern index, built once per worker process."""
-    from starid.index import PatternIndex
+    from adfusion.starid.index import PatternIndex
 
     def build():
         cat = renken_catalog(mag, merge_px=merge_px)
@@ -82,15 +84,15 @@ def two_star_counts(catalog, index, tol_deg: float, n_frames: int, seed: int) ->
     ``simulate_cell(…, n_frames, seed)`` draws: the catalogue pairs whose separation lies
     within ``tol_deg`` of the image pair's (linear pixel angle, 0.1 px centroids).
 
-    >>> from starid.index import PatternIndex
+    >>> from adfusion.starid.index import PatternIndex
     >>> cat = renken_catalog(3.0)
     >>> idx = PatternIndex.from_vectors(cat.vectors, np.radians(25.0))
     >>> c = two_star_counts(cat, idx, 0.1, 50, seed=1)
     >>> c["two_star"] == c["two_star_mc0"] + c["two_star_mc1"] + c["two_star_multiple"]
     True
     """
-    from starid.camera import Camera
-    from starid.view import stars_in_view
+    from adfusion.starid.camera import Camera
+    from adfusion.starid.view import stars_in_view
 
     cam = Camera.renken()
     app, tol = np.radians(0.051), np.radians(tol_deg)
@@ -130,7 +132,7 @@ def run(frames: int = 2000, seed: int = 1998, merge_px: float = 2.0, chunk: int 
         progress: bool = True) -> dict[str, Any]:
     """Run the grid as a campaign; the result document (counts, η, published figures)."""
     grid = cells or [(m, t) for m in PUBLISHED_ETA for t in TOLERANCES]
-    code = campaign.source_digest("starid")
+    code = campaign.source_digest("adfusion.starid")
     tasks = []
     for k, (mag, tol) in enumerate(grid):
         for j, start in enumerate(range(0, frames, chunk)):

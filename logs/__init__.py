@@ -5,7 +5,7 @@
 Example:
     >>> import os, tempfile
     >>> import numpy as np
-    >>> import logs
+    >>> from adfusion import logs
     >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
     >>> with logs.LogWriter(path) as log:
     ...     log.write_image(0.5, np.full((4, 6), 7, np.uint8))
@@ -13,10 +13,10 @@ Example:
     [(0.5, '/camera/image', (4, 6))]
 """
 
-from logs.message import Message
-from logs.reader import McapLogReader, ReadProblem, read_mcap
-from logs.sources import ImageFolderSource, McapSource, VideoSource, read_sensor_csv
-from logs.writer import LogWriter
+from adfusion.logs.message import Message
+from adfusion.logs.reader import McapLogReader, ReadProblem, read_mcap
+from adfusion.logs.sources import ImageFolderSource, McapSource, VideoSource, read_sensor_csv
+from adfusion.logs.writer import LogWriter
 
 __all__ = [
     "ImageFolderSource",

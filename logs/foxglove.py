@@ -7,7 +7,7 @@ reader yields (image → ``numpy`` array, everything else → ``dict`` with ``q_
 
 Example:
     >>> import numpy as np
-    >>> from logs import foxglove as fg
+    >>> from adfusion.logs import foxglove as fg
     >>> msg = fg.encode_pose(1_500_000_000, np.array([0.6, 0.8, 0.0, 0.0]), "icrs")
     >>> (msg.pose.orientation.x, msg.pose.orientation.w)
     (0.8, 0.6)

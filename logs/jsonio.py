@@ -4,7 +4,7 @@ MCAP metadata maps strings to strings; :func:`encode_metadata` keeps plain strin
 Foxglove and JSON-encodes everything else so that :func:`decode_metadata` restores it exactly.
 
 Example:
-    >>> from logs.jsonio import decode_metadata, encode_metadata
+    >>> from adfusion.logs.jsonio import decode_metadata, encode_metadata
     >>> enc = encode_metadata({"scenario": "oedipus", "seed": 7, "note": "42"})
     >>> enc
     {'scenario': 'oedipus', 'seed': '7', 'note': '"42"'}

@@ -1,7 +1,7 @@
 """The one event type every replay source yields: ``Message(t_s, topic, payload)``.
 
 Example:
-    >>> from logs.message import Message
+    >>> from adfusion.logs.message import Message
     >>> m = Message(1.5, "/imu/gyro", {"omega": [0.0, 0.0, 0.1]})
     >>> m.t_s, m.topic
     (1.5, '/imu/gyro')

@@ -13,7 +13,7 @@ dicts (``MessageToDict``), anything else → the raw bytes.
 
 Example:
     >>> import os, tempfile
-    >>> from logs import LogWriter, McapLogReader
+    >>> from adfusion.logs import LogWriter, McapLogReader
     >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
     >>> with LogWriter(path) as log:
     ...     log.write_json("/mag", 0.02, {"b_body": [1.0, 2.0, 3.0]})
@@ -38,15 +38,14 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
+from adfusion.logs import foxglove as fg
+from adfusion.logs.jsonio import decode_metadata
+from adfusion.logs.message import Message
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, Metadata, Schema, Statistics
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import breakup_chunk
-
-from logs import foxglove as fg
-from logs.jsonio import decode_metadata
-from logs.message import Message
 
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEADER = struct.Struct("<BQ")
@@ -485,7 +484,7 @@ def read_mcap(path: str | os.PathLike[str], *, topic_map: Mapping[str, str] | No
 
     Example:
         >>> import os, tempfile
-        >>> from logs import LogWriter, read_mcap
+        >>> from adfusion.logs import LogWriter, read_mcap
         >>> path = os.path.join(tempfile.mkdtemp(), "theirs.mcap")
         >>> with LogWriter(path) as log:
         ...     log.write_json("/imu/data", 1.0, {"omega": [0.0, 0.0, 0.2]})

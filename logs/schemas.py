@@ -6,7 +6,7 @@ allowed so that a component can add a diagnostic without a schema change; the li
 required.
 
 Example:
-    >>> from logs.schemas import JSON_SCHEMAS
+    >>> from adfusion.logs.schemas import JSON_SCHEMAS
     >>> name, schema = JSON_SCHEMAS["/estimate/state"]
     >>> name, schema["required"][:2]
     ('adfusion.FilterState', ['t', 'q_body_icrs'])

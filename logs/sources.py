@@ -14,7 +14,7 @@ the text is appended to ``source.problems``, and everything before it is yielded
 Example:
     >>> import os, tempfile
     >>> import cv2, numpy as np
-    >>> from logs import ImageFolderSource
+    >>> from adfusion.logs import ImageFolderSource
     >>> folder = tempfile.mkdtemp()
     >>> for i in range(2):
     ...     _ = cv2.imwrite(os.path.join(folder, f"f{i:03d}.png"), np.zeros((4, 4), np.uint8))
@@ -33,9 +33,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-
-from logs.message import Message
-from logs.reader import McapLogReader, McapReadWarning
+from adfusion.logs.message import Message
+from adfusion.logs.reader import McapLogReader, McapReadWarning
 
 IMAGE_TOPIC = "/camera/image"
 GYRO_TOPIC = "/imu/gyro"
@@ -243,7 +242,7 @@ class McapSource:
     Example:
         >>> import os, tempfile
         >>> import numpy as np
-        >>> from logs import LogWriter, McapSource
+        >>> from adfusion.logs import LogWriter, McapSource
         >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
         >>> with LogWriter(path) as log:
         ...     log.write_image(0.0, np.zeros((4, 4), np.uint8))

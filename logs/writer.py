@@ -16,7 +16,7 @@ chunk. Times are seconds (float) in the API and integer nanoseconds in the file.
 Example:
     >>> import os, tempfile
     >>> import numpy as np
-    >>> from logs import LogWriter
+    >>> from adfusion.logs import LogWriter
     >>> path = os.path.join(tempfile.mkdtemp(), "run.mcap")
     >>> with LogWriter(path) as log:
     ...     log.add_metadata("config", {"scenario": "oedipus", "seed": 1})
@@ -35,14 +35,13 @@ from types import TracebackType
 from typing import Any, Literal
 
 import numpy as np
+from adfusion.logs import foxglove as fg
+from adfusion.logs.jsonio import dumps, encode_metadata
+from adfusion.logs.schemas import GENERIC, JSON_SCHEMAS
 from google.protobuf.message import Message as ProtoMessage
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
-
-from logs import foxglove as fg
-from logs.jsonio import dumps, encode_metadata
-from logs.schemas import GENERIC, JSON_SCHEMAS
 
 ArrayLike = Any
 

@@ -17,8 +17,8 @@ Everything is seeded and deterministic; nothing here writes files (DESIGN.md). O
 Example — a spinning payload seen by all three sensors:
     >>> from datetime import datetime
     >>> import numpy as np
-    >>> import sensors
-    >>> from starid import Camera, rotations as rot
+    >>> from adfusion import sensors
+    >>> from adfusion.starid import Camera, rotations as rot
     >>> J = np.diag([10.0, 10.5, 3.0])                         # kg m², spin about z
     >>> traj = sensors.simulate_rigid_body(J, [1, 0, 0, 0], [0.02, 0.0, 1.0],
     ...                                    np.arange(0.0, 1.0, 0.01))
@@ -40,9 +40,9 @@ Example — a spinning payload seen by all three sensors:
     ((100, 3), (100, 3), (480, 512), [[100.0, 200.0], [300.0, 50.0]])
 """
 
-from sensors.dynamics import Trajectory, simulate_rate_profile, simulate_rigid_body
-from sensors.gyro import GyroModel, GyroSample, allan_deviation
-from sensors.magnetometer import (
+from adfusion.sensors.dynamics import Trajectory, simulate_rate_profile, simulate_rigid_body
+from adfusion.sensors.gyro import GyroModel, GyroSample, allan_deviation
+from adfusion.sensors.magnetometer import (
     MagnetometerModel,
     field_ecef_nT,
     field_enu_nT,
@@ -52,7 +52,7 @@ from sensors.magnetometer import (
     r_ecef_enu,
     r_icrs_ecef,
 )
-from sensors.render import (
+from adfusion.sensors.render import (
     Frame,
     Intensifier,
     Planet,
@@ -63,7 +63,7 @@ from sensors.render import (
     render_sky,
     render_stars,
 )
-from sensors.scenarios import Event, FrameTruth, Scenario, leo, oedipus
+from adfusion.sensors.scenarios import Event, FrameTruth, Scenario, leo, oedipus
 
 __all__ = [
     "Event",

@@ -17,7 +17,7 @@ conserved to ~1e-12 relative — truth errors far below any sensor's noise.
 
 Example:
     >>> import numpy as np
-    >>> from sensors.dynamics import simulate_rigid_body
+    >>> from adfusion.sensors.dynamics import simulate_rigid_body
     >>> traj = simulate_rigid_body(np.diag([10.0, 12.0, 4.0]), [1, 0, 0, 0],
     ...                            [0.05, 0.0, 3.0], np.linspace(0.0, 10.0, 101))
     >>> traj.q_body_icrs.shape, traj.omega_body_rad_s.shape
@@ -33,10 +33,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from adfusion.starid.rotations import normalize, rotate, to_matrix
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
-
-from starid.rotations import normalize, rotate, to_matrix
 
 __all__ = ["Trajectory", "simulate_rate_profile", "simulate_rigid_body"]
 
@@ -164,7 +163,7 @@ def simulate_rate_profile(
     The callable should be smooth between output times (a step in ω is integrated as
     accurately as the tolerances allow; put output times at the steps for exactness).
     """
-    from starid.rotations import exp_map, multiply
+    from adfusion.starid.rotations import exp_map, multiply
 
     t = _check_times(times)
     q0 = normalize(np.asarray(q0_body_icrs, dtype=np.float64).reshape(4))

@@ -26,7 +26,7 @@ filter estimates; it starts at ``bias_rad_s``.
 
 Example:
     >>> import numpy as np
-    >>> from sensors.gyro import GyroModel
+    >>> from adfusion.sensors.gyro import GyroModel
     >>> gyro = GyroModel(arw_rad_sqrt_s=1e-4, rrw_rad_s_sqrt_s=1e-6,
     ...                  bias_rad_s=[1e-3, 0.0, 0.0], rate_hz=100.0, seed=1)
     >>> omega, bias = gyro.measure(0.01, [0.0, 0.0, 0.1])

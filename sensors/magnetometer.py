@@ -39,7 +39,7 @@ deterministic part.
 Example:
     >>> from datetime import datetime
     >>> import numpy as np
-    >>> from sensors.magnetometer import MagnetometerModel, field_icrs_nT
+    >>> from adfusion.sensors.magnetometer import MagnetometerModel, field_icrs_nT
     >>> b = field_icrs_nT(69.29, 16.02, 0.0, datetime(2025, 1, 1, 12))   # Andøya
     >>> bool(50_000 < np.linalg.norm(b) < 56_000)
     True

@@ -31,8 +31,8 @@ exposure) 8 / 11 ms, 110-px streaks (3 rad/s) 33 / 50 ms, the intensifier mode 2
 
 Example:
     >>> import numpy as np
-    >>> from starid import Camera
-    >>> from sensors.render import render_stars
+    >>> from adfusion.starid import Camera
+    >>> from adfusion.sensors.render import render_stars
     >>> cam = Camera.pinhole(64, 48, 5.0)
     >>> img = render_stars(cam, np.array([[31.0, 23.0]]), np.array([5000.0]), seed=1)
     >>> img.shape, img.dtype.name, int(np.unravel_index(img.argmax(), img.shape)[1])
@@ -40,8 +40,8 @@ Example:
 
 A streaked frame with a planet and a tether:
 
-    >>> from sensors.render import Planet, SensorModel, Tether, render_frame
-    >>> from starid.rotations import q_cam_icrs_from_radec_roll, radec_to_vector
+    >>> from adfusion.sensors.render import Planet, SensorModel, Tether, render_frame
+    >>> from adfusion.starid.rotations import q_cam_icrs_from_radec_roll, radec_to_vector
     >>> cam = Camera.pinhole(512, 480, 25.8)
     >>> q = q_cam_icrs_from_radec_roll(*np.radians([10.0, 60.0, 0.0]))
     >>> stars = radec_to_vector(np.radians([10.0, 12.0]), np.radians([60.0, 62.0]))
@@ -60,10 +60,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from adfusion.starid.camera import Camera
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import erf
-
-from starid.camera import Camera
 
 __all__ = [
     "Frame",
@@ -512,7 +511,7 @@ def render_frame(
         planets: bright point sources at ICRS directions (:class:`Planet`).
         tethers: lines in the image (:class:`Tether`).
     """
-    from starid.rotations import exp_map, rotate, to_matrix
+    from adfusion.starid.rotations import exp_map, rotate, to_matrix
 
     s = sensor or SensorModel()
     rng = np.random.default_rng(seed)

@@ -30,7 +30,7 @@ Event kinds and their ``data`` (NumPy arrays, SI units, DESIGN.md conventions):
   ``star_index`` (into ``Scenario.catalog``), ``hip`` (catalogue ids), ``q_cam_icrs``.
 
 Example:
-    >>> from sensors.scenarios import oedipus
+    >>> from adfusion.sensors.scenarios import oedipus
     >>> sc = oedipus(duration_s=0.1, render=False)
     >>> sc.camera.width, sc.camera.height, round(sc.camera.fov_y_deg, 2)
     (512, 480, 20.33)
@@ -49,15 +49,14 @@ from functools import cached_property
 from typing import Any
 
 import numpy as np
+from adfusion.sensors.dynamics import Trajectory, simulate_rate_profile, simulate_rigid_body
+from adfusion.sensors.gyro import GyroModel
+from adfusion.sensors.magnetometer import MagnetometerModel, field_icrs_nT, r_icrs_ecef
+from adfusion.sensors.render import Intensifier, SensorModel, Tether, render_frame
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
 from numpy.typing import ArrayLike, NDArray
-
-from sensors.dynamics import Trajectory, simulate_rate_profile, simulate_rigid_body
-from sensors.gyro import GyroModel
-from sensors.magnetometer import MagnetometerModel, field_icrs_nT, r_icrs_ecef
-from sensors.render import Intensifier, SensorModel, Tether, render_frame
-from starid import rotations as rot
-from starid.camera import Camera
-from starid.catalog import Catalog
 
 __all__ = [
     "KINDS",

@@ -1,7 +1,7 @@
 """starid: star catalogue, camera models, star detection and star identification.
 
 Example:
-    >>> import starid
+    >>> from adfusion import starid
     >>> cam = starid.Camera.pinhole(width=1024, height=768, fov_x_deg=11.4)
     >>> cam.width
     1024
@@ -9,13 +9,13 @@ Example:
 
 from typing import TYPE_CHECKING, Any
 
-from starid import rotations
-from starid.camera import Camera
-from starid.detect import Detections, detect
+from adfusion.starid import rotations
+from adfusion.starid.camera import Camera
+from adfusion.starid.detect import Detections, detect
 
 if TYPE_CHECKING:
-    from starid.catalog import Catalog
-    from starid.solver import Candidate, Prior, Solution, Solver
+    from adfusion.starid.catalog import Catalog
+    from adfusion.starid.solver import Candidate, Prior, Solution, Solver
 
 __all__ = [
     "Camera",
@@ -31,8 +31,9 @@ __all__ = [
 
 # The catalogue and the solver (scipy, numba) load on first use: a process that only
 # detects stars — replay's detection worker — starts ~0.4 s sooner without them.
-_LAZY = {"Catalog": "starid.catalog", "Candidate": "starid.solver", "Prior": "starid.solver",
-         "Solution": "starid.solver", "Solver": "starid.solver"}
+_LAZY = {"Catalog": "adfusion.starid.catalog", "Candidate": "adfusion.starid.solver",
+         "Prior": "adfusion.starid.solver", "Solution": "adfusion.starid.solver",
+         "Solver": "adfusion.starid.solver"}
 
 
 def __getattr__(name: str) -> Any:

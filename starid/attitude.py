@@ -8,8 +8,8 @@ in the camera frame is ``P = (Σ w_i (I − b_i b_iᵀ))⁻¹`` (Shuster's QUEST
 
 Example:
     >>> import numpy as np
-    >>> from starid import rotations as rot
-    >>> from starid.attitude import wahba
+    >>> from adfusion.starid import rotations as rot
+    >>> from adfusion.starid.attitude import wahba
     >>> q_true = rot.q_cam_icrs_from_radec_roll(1.0, 0.5, 0.2)
     >>> r = rot.radec_to_vector([1.0, 1.02, 0.98], [0.5, 0.51, 0.52])
     >>> sol = wahba(rot.rotate(q_true, r), r, sigma_rad=1e-5)
@@ -23,9 +23,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from adfusion.starid import rotations as rot
 from numpy.typing import ArrayLike, NDArray
-
-from starid import rotations as rot
 
 __all__ = ["WahbaSolution", "refine_streaked", "streak_vectors", "wahba", "wahba_near",
            "wahba_unit"]
@@ -115,7 +114,7 @@ def wahba_near(q_cam_icrs: NDArray[np.float64], b: NDArray[np.float64],
     from a filter's prior that is one step. Raises ValueError when the directions are
     (nearly) collinear, like :func:`wahba_unit`.
 
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> q = rot.q_cam_icrs_from_radec_roll(1.0, 0.5, 0.2)
     >>> r = rot.radec_to_vector([1.0, 1.02, 0.98], [0.5, 0.51, 0.52])
     >>> near = rot.multiply(rot.exp_map([2e-3, -1e-3, 3e-3]), q)
@@ -190,7 +189,7 @@ def refine_streaked(q_cam_icrs: ArrayLike, b: NDArray[np.float64], r: NDArray[np
 
     Example:
         >>> import numpy as np
-        >>> from starid import rotations as rot
+        >>> from adfusion.starid import rotations as rot
         >>> q = rot.q_cam_icrs_from_radec_roll(1.0, 0.5, 0.2)
         >>> r = rot.radec_to_vector([1.0, 1.02, 0.98, 1.01], [0.5, 0.51, 0.52, 0.49])
         >>> b = rot.rotate(q, r)

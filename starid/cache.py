@@ -10,7 +10,7 @@ else ``~/.cache/adfusion``. Set ``ADFUSION_CACHE_DIR=off`` to disable caching.
 
 Example:
     >>> import numpy as np
-    >>> from starid.cache import cached_arrays
+    >>> from adfusion.starid.cache import cached_arrays
     >>> arrays = cached_arrays("demo", {"n": 3}, [], lambda: {"x": np.arange(3)})
     >>> arrays["x"].tolist()
     [0, 1, 2]

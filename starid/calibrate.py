@@ -7,8 +7,8 @@ identified stars. Least squares on the angle between predicted and reference dir
 
 Example:
     >>> import numpy as np
-    >>> from starid import Camera, rotations as rot
-    >>> from starid.calibrate import fit_camera
+    >>> from adfusion.starid import Camera, rotations as rot
+    >>> from adfusion.starid.calibrate import fit_camera
     >>> true_cam = Camera.pinhole(1024, 768, 11.4)
     >>> q = rot.q_cam_icrs_from_radec_roll(3.0, 0.4, 1.0)
     >>> xy = np.array([[100.0, 80], [512, 80], [900, 700], [512, 384], [50, 700]])
@@ -23,12 +23,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from adfusion.starid import rotations as rot
+from adfusion.starid.attitude import wahba
+from adfusion.starid.camera import Camera
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
-
-from starid import rotations as rot
-from starid.attitude import wahba
-from starid.camera import Camera
 
 __all__ = ["CameraFit", "fit_camera"]
 

@@ -26,7 +26,7 @@ Geometry
 
 Example:
     >>> import numpy as np
-    >>> from starid.catalog import Catalog
+    >>> from adfusion.starid.catalog import Catalog
     >>> cat = Catalog.hipparcos(mag_limit=2.0, epoch=2025.0)
     >>> len(cat), cat.mag_system, cat.source
     (50, 'V', 'hipparcos')
@@ -46,38 +46,30 @@ from pathlib import Path
 from typing import NoReturn
 
 import numpy as np
+from adfusion.starid.cache import cached_arrays
+from adfusion.starid.rotations import radec_to_vector, vector_to_radec
 from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from starid.cache import cached_arrays
-from starid.rotations import radec_to_vector, vector_to_radec
-
 __all__ = [
-    "RENKEN_SAO_COUNTS",
     "Band",
     "Catalog",
     "band_boundaries_deg",
     "combined_magnitude",
     "estimate_v_from_hp",
-    "renken_count_table",
 ]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 PathLike = str | os.PathLike[str]
 
-#: Renken (1998) Tab. A.2: full-sky SAO catalogues with ``mag < limit`` (limit, star count).
-RENKEN_SAO_COUNTS: tuple[tuple[float, int], ...] = (
-    (1.0, 12), (2.0, 36), (3.0, 136), (4.0, 427), (4.5, 764),
-    (5.0, 1370), (5.4, 2526), (5.7, 3581), (6.0, 4480),
-)  # fmt: skip
-
 HIPPARCOS_EPOCH = 1991.25  # Julian year of the I/311 positions
 BSC5_EPOCH = 2000.0  # Julian year (and equinox) of the BSC5 positions
 
 _MAS_TO_RAD = math.pi / (180.0 * 3600.0 * 1000.0)
+
 _ARCSEC_TO_RAD = math.pi / (180.0 * 3600.0)
 _BAND_EPS_RAD = 1e-12  # absorbs rounding in band membership (≈ 2e-7 arcsec)
 
@@ -578,7 +570,8 @@ class Catalog:
 
         Reproductions use it to match another catalogue's star count: Renken's SAO
         "uptomag" catalogues are best imitated by as many Hipparcos stars, because SAO
-        magnitudes run ~0.15 mag fainter than Johnson V (see ``renken_count_table``).
+        magnitudes run ~0.15 mag fainter than Johnson V (see
+        :func:`adfusion.starid.renken.renken_count_table`).
 
         >>> cat = Catalog([7, 8, 9], [[1, 0, 0], [0, 1, 0], [0, 0, 1]], [3.0, 1.0, 2.0])
         >>> cat.brightest(2).ids.tolist()
@@ -713,28 +706,6 @@ class Catalog:
             epoch=self._epoch, source=self._source, comp_ids=arrays["comp_ids"],
             comp_offsets=arrays["comp_offsets"],
         )  # fmt: skip
-
-
-def renken_count_table(merge_sep_deg: float | None = None) -> list[tuple[float, int, int, int]]:
-    """Hipparcos star counts against Renken's SAO catalogues (Tab. A.2), all ``mag < L``.
-
-    Rows ``(L, sao, ours_V, ours_Hp)`` for L = 1.0 … 6.0, ours from :meth:`Catalog.hipparcos`
-    (estimated V, and Hp). Star counts do not depend on the epoch unless stars are merged.
-
-    >>> renken_count_table()[2]
-    (3.0, 136, 176, 165)
-    """
-    top = max(limit for limit, _ in RENKEN_SAO_COUNTS)
-    mags = {
-        system: Catalog.hipparcos(
-            mag_limit=top + 1.0, mag_system=system, merge_sep_deg=merge_sep_deg
-        ).mag
-        for system in ("V", "Hp")
-    }
-    return [
-        (limit, sao, int(np.sum(mags["V"] < limit)), int(np.sum(mags["Hp"] < limit)))
-        for limit, sao in RENKEN_SAO_COUNTS
-    ]
 
 
 # --- helpers ---------------------------------------------------------------------------

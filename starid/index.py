@@ -14,7 +14,7 @@ on disk (:mod:`starid.cache`).
 
 Example:
     >>> import numpy as np
-    >>> from starid.index import PatternIndex
+    >>> from adfusion.starid.index import PatternIndex
     >>> v = np.array([[1, 0, 0], [np.cos(0.1), np.sin(0.1), 0], [0, 1, 0.0]])
     >>> idx = PatternIndex.from_vectors(v, max_sep_rad=0.5)
     >>> idx.pairs_in_window(np.cos(0.11), np.cos(0.09))
@@ -27,10 +27,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from adfusion.starid.cache import cached_arrays
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
-
-from starid.cache import cached_arrays
 
 __all__ = ["PatternIndex"]
 

@@ -19,7 +19,7 @@ after an install or an edit spends ~10–15 s compiling (once), later ones ~0.5 
 ``ix`` below is :func:`index_arrays` of a :class:`starid.index.PatternIndex`.
 
 Example:
-    >>> from starid.kernels import binomial_tail
+    >>> from adfusion.starid.kernels import binomial_tail
     >>> round(binomial_tail(3, 10, 0.01), 6)  # P(X ≥ 3), X ~ Binomial(10, 0.01): as scipy
     0.000114
 """
@@ -30,8 +30,7 @@ import math
 
 import numba
 import numpy as np
-
-from starid.verify import DENSITY_SAFETY
+from adfusion.starid.verify import DENSITY_SAFETY
 
 __all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", "search"]
 

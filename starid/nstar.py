@@ -16,8 +16,8 @@ Two implementations with identical results (renken.md AC-13, tested):
 
 Example:
     >>> import numpy as np
-    >>> from starid.index import PatternIndex
-    >>> from starid.nstar import Pattern, match_indexed
+    >>> from adfusion.starid.index import PatternIndex
+    >>> from adfusion.starid.nstar import Pattern, match_indexed
     >>> rng = np.random.default_rng(1)
     >>> cat = rng.normal(size=(300, 3)); cat /= np.linalg.norm(cat, axis=1, keepdims=True)
     >>> true = [5, 17, 42]                       # pretend the camera saw these three
@@ -33,9 +33,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from adfusion.starid.index import PatternIndex
 from numpy.typing import NDArray
-
-from starid.index import PatternIndex
 
 __all__ = [
     "Pattern",

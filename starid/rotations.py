@@ -9,14 +9,14 @@ The one place in the code base where rotation conventions live (DESIGN.md):
   ``R(exp(φ)) = expm([φ]×)`` — GTSAM's ``Rot3.Expmap`` and scipy's ``from_rotvec``.
 
 It lives in ``starid`` (not ``adfusion``) because ``starid`` sits at the bottom of the
-dependency graph and needs it; ``adfusion.rotations`` re-exports this module.
+dependency graph and needs it; the filters use it too (one implementation).
 
 Every function accepts a single quaternion ``(4,)`` / vector ``(3,)`` or stacks
 ``(N, 4)`` / ``(N, 3)`` and broadcasts like numpy.
 
 Example:
     >>> import numpy as np
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> q_b_a = rot.exp_map([0.0, 0.0, np.pi / 2])       # 90° about +z
     >>> np.round(rot.rotate(q_b_a, [1.0, 0.0, 0.0]), 12).tolist()
     [0.0, 1.0, 0.0]

@@ -19,8 +19,8 @@ matched stars.
 
 Example:
     >>> import numpy as np
-    >>> import starid
-    >>> from starid import rotations as rot
+    >>> from adfusion import starid
+    >>> from adfusion.starid import rotations as rot
     >>> cat = starid.Catalog.hipparcos(mag_limit=5.5)
     >>> cam = starid.Camera.pinhole(1024, 768, 15.0)
     >>> q = rot.q_cam_icrs_from_radec_roll(*np.radians([10.0, 60.0, 20.0]))
@@ -45,16 +45,13 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from numpy.typing import NDArray
-from scipy.spatial import cKDTree
-
-from starid import kernels
-from starid import rotations as rot
-from starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
-from starid.calibrate import fit_camera
-from starid.camera import Camera
-from starid.index import PatternIndex
-from starid.nstar import (
+from adfusion.starid import kernels
+from adfusion.starid import rotations as rot
+from adfusion.starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
+from adfusion.starid.calibrate import fit_camera
+from adfusion.starid.camera import Camera
+from adfusion.starid.index import PatternIndex
+from adfusion.starid.nstar import (
     Pattern,
     WorkBudgetExceeded,
     chirality_of,
@@ -62,8 +59,10 @@ from starid.nstar import (
     match_faithful,
     match_indexed,
 )
-from starid.search_order import combination_order
-from starid.verify import DENSITY_SAFETY, binomial_tail
+from adfusion.starid.search_order import combination_order
+from adfusion.starid.verify import DENSITY_SAFETY, binomial_tail
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
@@ -353,7 +352,7 @@ class Solver:
         use. Call it once before a timed or real-time loop. Returns whether a synthetic
         frame (the catalogue seen at a few fixed attitudes) was solved.
 
-        >>> import starid
+        >>> from adfusion import starid
         >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
         ...                   starid.Camera.pinhole(1024, 768, 15.0))
         >>> s.warm_up()
@@ -380,8 +379,8 @@ class Solver:
         attitude (``q_cam_icrs``). Cheap frame after frame: the solver keeps the last
         catalogue cone.
 
-        >>> import starid
-        >>> from starid import rotations as rot
+        >>> from adfusion import starid
+        >>> from adfusion.starid import rotations as rot
         >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
         ...                   starid.Camera.pinhole(1024, 768, 15.0))
         >>> xy, ids = s.stars_in_view(rot.q_cam_icrs_from_radec_roll(0.2, 1.0, 0.0))
@@ -786,7 +785,7 @@ class Solver:
         """Yee's triad method (:mod:`starid.triad`), then our verification: Yee's voting
         can accept a false 3-star match (a mirror image, a close double), so the result
         must also pass the false-match probability test like any n-star candidate."""
-        from starid.triad import SeparationDatabase, TriadParams, identify_triads
+        from adfusion.starid.triad import SeparationDatabase, TriadParams, identify_triads
 
         params = self.triad_params or TriadParams()
         if self._triad_db is None:

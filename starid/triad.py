@@ -25,9 +25,9 @@ yee.md says [AMBIGUOUS] are marked "AMBIGUOUS:" in comments below.
 
 Example:
     >>> import numpy as np
-    >>> from starid import rotations as rot
-    >>> from starid.camera import Camera
-    >>> from starid.catalog import Catalog
+    >>> from adfusion.starid import rotations as rot
+    >>> from adfusion.starid.camera import Camera
+    >>> from adfusion.starid.catalog import Catalog
     >>> rng = np.random.default_rng(1)
     >>> cam = Camera.yee(400, 300, 10.0, 7.5)
     >>> q = rot.q_cam_icrs_from_radec_roll(np.radians(40.0), np.radians(20.0), 0.5)
@@ -50,11 +50,10 @@ from dataclasses import dataclass, field
 from itertools import combinations
 
 import numpy as np
+from adfusion.starid.attitude import wahba
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
 from numpy.typing import ArrayLike, NDArray
-
-from starid.attitude import wahba
-from starid.camera import Camera
-from starid.catalog import Catalog
 
 __all__ = [
     "YEE_MERGED_OFFSET",

@@ -2,8 +2,8 @@
 
 Example:
     >>> import numpy as np
-    >>> import starid
-    >>> from starid.view import stars_in_view
+    >>> from adfusion import starid
+    >>> from adfusion.starid.view import stars_in_view
     >>> cat = starid.Catalog.hipparcos(mag_limit=4.0)
     >>> cam = starid.Camera.pinhole(1024, 768, 15.0)
     >>> q = starid.rotations.q_cam_icrs_from_radec_roll(*np.radians([10.0, 60.0, 20.0]))
@@ -15,10 +15,9 @@ Example:
 from __future__ import annotations
 
 import numpy as np
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
 from numpy.typing import ArrayLike, NDArray
-
-from starid import rotations as rot
-from starid.camera import Camera
 
 __all__ = ["stars_in_view"]
 

@@ -14,11 +14,10 @@ from functools import cache
 from pathlib import Path
 
 import numpy as np
-
-from starid import Camera
-from starid import rotations as rot
-from starid.calibrate import CameraFit, fit_camera
-from starid.view import stars_in_view
+from adfusion.starid import Camera
+from adfusion.starid import rotations as rot
+from adfusion.starid.calibrate import CameraFit, fit_camera
+from adfusion.starid.view import stars_in_view
 
 OBS_EPOCH = 2019.575  # 2019-07-29
 

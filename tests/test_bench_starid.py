@@ -1,4 +1,4 @@
-"""Smoke tests of ``adfusion.bench_starid`` (the ``adfusion bench starid`` benchmark).
+"""Smoke tests of ``adfusion.bench.starid`` (the ``adfusion bench starid`` benchmark).
 
 Small on purpose (a few seconds): 2 conditions × 5 frames with our solver, the JSON layout,
 the statistics helpers, and — when tetra3rs is installed — its centroid/attitude conversion.
@@ -14,7 +14,7 @@ import json
 import numpy as np
 import pytest
 
-from adfusion import bench_starid as bench
+from adfusion.bench import starid as bench
 
 
 @pytest.fixture(scope="module")
@@ -69,8 +69,7 @@ def test_table_printed(smoke: tuple[dict, str, str]) -> None:
 
 
 def test_frames_are_reproducible_and_shared() -> None:
-    import starid
-
+    from adfusion import starid
     cat = bench._catalog(6.0, 2025.0)
     cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
     clean = bench.CONDITIONS["clean"].resolved(0.1, 6.0)

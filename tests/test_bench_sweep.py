@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from adfusion import bench_starid as bs
-from adfusion import bench_sweep
-from adfusion.cli import main as cli_main
+from adfusion.app.cli import main as cli_main
+from adfusion.bench import starid as bs
+from adfusion.bench import sweep as bench_sweep
 
 
 def _solvers() -> list[str]:
@@ -86,8 +86,9 @@ def test_error_bound_math(doc: dict) -> None:
 def test_streaked_frame_scored_along_the_exposure() -> None:
     """A fix equal to the attitude at the end of the exposure (a fragment's instant) is the
     right identification: correct, but counted as off mid-exposure."""
-    import starid
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
+
+    from adfusion import starid
 
     cat = bs._catalog(5.0, 2025.0)
     cam = starid.Camera.pinhole(512, 384, fov_x_deg=15.0)

@@ -7,12 +7,11 @@ import itertools
 import cv2
 import numpy as np
 import pytest
+from adfusion.starid import Camera
+from adfusion.starid.camera import yee_separation_rad
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from starid import Camera
-from starid.camera import yee_separation_rad
-from tests.yee_fixtures import FOV_DEG, IMAGES, to_pixels
+from yee_fixtures import FOV_DEG, IMAGES, to_pixels
 
 # a strongly distorted lens (k1..k3, tangential, rational and thin-prism terms)
 D_STRONG = np.array([-0.28, 0.09, 1e-3, -5e-4, -0.012, 0.01, -0.004, 0.002, 1e-4, -2e-5,

@@ -1,4 +1,4 @@
-"""``adfusion.campaign``: the same results on any number of dask workers, a lost worker
+"""``adfusion.bench.campaign``: the same results on any number of dask workers, a lost worker
 costs only its in-flight task, and a rerun computes only what its partial file lacks.
 
 The dask tests need ``dask[distributed]`` (the ``dist`` extra; the ``test`` extra installs
@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from adfusion import bench_sweep, campaign
+from adfusion.bench import campaign
+from adfusion.bench import sweep as bench_sweep
 
 
 def test_serial_campaign_in_task_order(tmp_path: Path) -> None:
@@ -68,7 +69,7 @@ def test_without_dask_runs_serially_with_a_note() -> None:
     import subprocess
 
     code = ("import sys; sys.modules['distributed'] = None\n"
-            "from adfusion import campaign\n"
+            "from adfusion.bench import campaign\n"
             "r = campaign.run_campaign(campaign.square, [campaign.Task('a', 3)], workers=2,"
             " progress=False)\n"
             "print(r.backend, r.results['a'])")

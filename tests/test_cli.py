@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from adfusion.cli import main
+from adfusion.app.cli import main
 
 
 def test_help_lists_the_commands(capsys):

@@ -1,4 +1,5 @@
-"""starid.detect against independent truth: Renken's segmentation cases (AC-09, AC-10), synthetic
+"""adfusion.starid.detect against independent truth: Renken's segmentation cases (AC-09,
+AC-10), synthetic
 frames rendered here (pixel-integrated Gaussian stars, so the true centroid is known exactly),
 input handling, and the real frames in ../shared (skipped when absent)."""
 
@@ -11,13 +12,12 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
+from adfusion.starid.detect import Detections, Rejection, _label, detect, read_image
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 from scipy.spatial import cKDTree
 from scipy.special import erf
-
-from starid.detect import Detections, Rejection, _label, detect, read_image
 
 pytestmark = pytest.mark.opencv
 
@@ -587,7 +587,7 @@ def test_histogram_quantiles_equal_the_sorted_ones():
     for 8/16-bit and signed residual data, on or off a 16-level lattice."""
     import importlib
 
-    det = importlib.import_module("starid.detect")
+    det = importlib.import_module("adfusion.starid.detect")
     rng = np.random.default_rng(0)
     for _ in range(200):
         rows, n = int(rng.integers(1, 40)), int(rng.choice([5, 64, 127, 128, 129, 256]))

@@ -6,10 +6,10 @@ import sys
 
 import numpy as np
 import pytest
+from adfusion.sensors.scenarios import oedipus
 
-import starid
-from adfusion.detect_worker import DetectWorker, keep_freed_memory
-from sensors.scenarios import oedipus
+from adfusion import starid
+from adfusion.app.detect_worker import DetectWorker, keep_freed_memory
 
 
 def test_worker_results_equal_direct_detection_in_any_order():

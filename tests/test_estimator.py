@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from adfusion.sensors.dynamics import simulate_rate_profile
+from adfusion.sensors.gyro import GyroModel
+from adfusion.starid import rotations as rot
+from adfusion.starid.view import stars_in_view
 
-import starid
-from adfusion.estimator import Estimator
-from sensors.dynamics import simulate_rate_profile
-from sensors.gyro import GyroModel
-from starid import rotations as rot
-from starid.view import stars_in_view
+from adfusion import starid
+from adfusion.estimation.estimator import Estimator
 
 FPS = 30.0
 GYRO_HZ = 200.0

@@ -19,13 +19,7 @@ from typing import Any
 import cv2
 import numpy as np
 import pytest
-from mcap.data_stream import ReadDataStream
-from mcap.reader import make_reader
-from mcap.records import Chunk
-from mcap.records import Message as McapMessage
-from mcap.stream_reader import breakup_chunk
-
-from logs import (
+from adfusion.logs import (
     ImageFolderSource,
     LogWriter,
     McapLogReader,
@@ -35,8 +29,13 @@ from logs import (
     read_mcap,
     read_sensor_csv,
 )
-from logs.reader import McapReadWarning
-from logs.schemas import JSON_SCHEMAS
+from adfusion.logs.reader import McapReadWarning
+from adfusion.logs.schemas import JSON_SCHEMAS
+from mcap.data_stream import ReadDataStream
+from mcap.reader import make_reader
+from mcap.records import Chunk
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import breakup_chunk
 
 REPO = Path(__file__).resolve().parents[1]
 FPS = 30.0
@@ -328,7 +327,7 @@ def test_corrupt_chunk_stops_there(tmp_path: Path) -> None:
 KILLED_WRITER = """
 import sys
 import numpy as np
-from logs import LogWriter
+from adfusion.logs import LogWriter
 log = LogWriter(sys.argv[1], chunk_size=100_000)
 log.add_metadata("config", {"run": "killed"})
 i = 0
@@ -544,9 +543,8 @@ def test_no_warning_for_intact_file(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("case", range(5))
 def test_annotation_bytes_parse_to_the_message_built_object_by_object(case):
+    from adfusion.logs import foxglove as fg
     from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
-
-    from logs import foxglove as fg
 
     rng = np.random.default_rng(case)
     det = rng.uniform(-1.0, 600.0, (int(rng.integers(0, 40)), 2))
@@ -566,7 +564,7 @@ def test_annotation_bytes_parse_to_the_message_built_object_by_object(case):
 
 
 def test_protobuf_bytes_are_written_as_given_and_raw_frames_read_back(tmp_path):
-    from logs import foxglove as fg
+    from adfusion.logs import foxglove as fg
 
     path = tmp_path / "copy.mcap"
     img = _frame(3)
@@ -586,7 +584,7 @@ def test_json_dumps_equals_the_converted_copy():
     # dumps skips to_jsonable's copy unless a non-finite float needs it: the text is the same
     import json
 
-    from logs.jsonio import dumps, to_jsonable
+    from adfusion.logs.jsonio import dumps, to_jsonable
 
     rng = np.random.default_rng(3)
     cases = [

@@ -22,11 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from adfusion.starid import rotations as rot
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from adfusion.mekf import (
+from adfusion.estimation.mekf import (
     MEKF,
     AttitudeFilter,
     UpdateResult,
@@ -34,7 +35,6 @@ from adfusion.mekf import (
     process_noise,
     transition_matrix,
 )
-from starid import rotations as rot
 
 # --- Crassidis & Junkins Ex. 7.1 -------------------------------------------------------
 SIGMA_V = math.sqrt(10.0) * 1e-7  # rad/s^½, angle random walk

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from adfusion.logs import McapLogReader
+from adfusion.sensors.scenarios import oedipus
 
-from adfusion.pipeline import replay, simulate
-from logs import McapLogReader
-from sensors.scenarios import oedipus
+from adfusion.app.pipeline import replay, simulate
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +94,7 @@ def test_replay_without_gyro_or_magnetometer_still_tracks(tmp_path):
 
 
 def test_cli_demo_and_report(tmp_path, capsys):
-    from adfusion.cli import main
+    from adfusion.app.cli import main
 
     assert main(["demo", "-o", str(tmp_path), "--duration", "1.5"]) == 0
     out = capsys.readouterr().out
@@ -118,7 +118,7 @@ def test_a_replay_killed_mid_run_leaves_a_readable_log(rendered, tmp_path):
     _, sim = rendered
     out = tmp_path / "killed.mcap"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-    proc = subprocess.Popen([sys.executable, "-m", "adfusion.cli", "replay", str(sim), "-o",
+    proc = subprocess.Popen([sys.executable, "-m", "adfusion.app.cli", "replay", str(sim), "-o",
                              str(out)], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     deadline = time.time() + 60
@@ -165,9 +165,10 @@ def test_replay_leaves_video_uncompressed_and_compresses_other_logs(rendered, tm
 def test_stars_in_view_are_counted_as_stars_in_view_counts_them(mag_limit):
     """The summary's batch count of catalogue stars in view equals Solver.stars_in_view
     frame by frame (random attitudes, so counts around the threshold of 3 occur)."""
-    from adfusion.pipeline import ReplaySummary, _InViewCounter
-    from starid import Camera, Catalog, Solver
-    from starid import rotations as rot
+    from adfusion.starid import Camera, Catalog, Solver
+    from adfusion.starid import rotations as rot
+
+    from adfusion.app.pipeline import ReplaySummary, _InViewCounter
 
     solver = Solver(Catalog.hipparcos(mag_limit=mag_limit),
                     Camera.pinhole(512, 480, 12.0), cache=False)

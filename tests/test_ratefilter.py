@@ -18,11 +18,11 @@ import math
 
 import numpy as np
 import pytest
+from adfusion.sensors.dynamics import simulate_rigid_body
 from scipy.linalg import expm
 
-from adfusion.mekf import UpdateResult, _qexp, _qlog, _qmul
-from adfusion.ratefilter import RateMEKF, rate_process_noise, rate_transition_matrix
-from sensors.dynamics import simulate_rigid_body
+from adfusion.estimation.mekf import UpdateResult, _qexp, _qlog, _qmul
+from adfusion.estimation.ratefilter import RateMEKF, rate_process_noise, rate_transition_matrix
 
 INERTIA = np.diag([40.0, 41.0, 4.0])
 OMEGA0 = [0.05, 0.0, 3.14]

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from real_frames import OBS_EPOCH, grid_errors_deg, load_frames, projected_stars
 from scipy.spatial import cKDTree
 
-import starid
-from tests.real_frames import OBS_EPOCH, grid_errors_deg, load_frames, projected_stars
+from adfusion import starid
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +94,7 @@ def test_lost_in_space_on_real_frames_matches_astrometry_net(frames, real_solver
 def test_cli_solve_on_a_real_frame(frames, tmp_path, capsys):
     import json
 
-    from adfusion.cli import main
+    from adfusion.app.cli import main
 
     f = frames[2]
     out = tmp_path / "overlay.png"
@@ -104,8 +104,7 @@ def test_cli_solve_on_a_real_frame(frames, tmp_path, capsys):
     assert res["ok"] and len(res["matches"]) >= 10
     ra, dec = res["ra_deg"], res["dec_deg"]
     import numpy as np
-
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
     centre = rot.radec_to_vector(np.radians(ra), np.radians(dec))
     # the boresight is the principal point, the image centre: compare with grid point 4
     assert np.degrees(np.arccos(np.clip(centre @ f.grid_icrs[4], -1, 1))) < 0.01

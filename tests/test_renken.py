@@ -7,13 +7,9 @@ import itertools
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-import starid
-from starid import rotations as rot
-from starid.index import PatternIndex
-from starid.nstar import (
+from adfusion.starid import rotations as rot
+from adfusion.starid.index import PatternIndex
+from adfusion.starid.nstar import (
     Pattern,
     WorkBudgetExceeded,
     closest_pair_first,
@@ -22,8 +18,13 @@ from starid.nstar import (
     match_faithful,
     match_indexed,
 )
-from starid.renken import affine_attitude, affine_coefficients, eq_8_1_attitudes, linear_pattern
-from starid.view import stars_in_view
+from adfusion.starid.renken import affine_attitude, affine_coefficients, linear_pattern
+from adfusion.starid.view import stars_in_view
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from adfusion import starid
+from adfusion.bench.renken_sim import eq_8_1_attitudes
 
 APP = np.radians(0.051)  # Renken's angle per pixel
 # B1950 → J2000 (FK4 → FK5 without E-terms); Renken's attitudes are B1950
@@ -358,7 +359,7 @@ def test_eq_8_1_overweights_high_declinations():
     [(5.4, 0.1, 99.7, 3.0), (6.0, 0.2, 91.9, 5.0), (4.0, 0.1, 44.2, 8.0)],
 )
 def test_simulation_eta_matches_tab_8_22_to_8_28(mag, tol, published, bound):
-    from starid.renken import renken_catalog, simulate_cell
+    from adfusion.bench.renken_sim import renken_catalog, simulate_cell
 
     cell = simulate_cell(renken_catalog(mag), mag, tol, 300, seed=42)
     assert abs(cell.eta - published) <= bound, cell
@@ -370,10 +371,10 @@ def test_simulation_eta_matches_tab_8_22_to_8_28(mag, tol, published, bound):
 @settings(max_examples=60, deadline=None)
 def test_compiled_match_gives_the_rows_of_match_indexed(small_sky, seed, n, tol_deg,
                                                         undecided):
-    """starid.kernels.match (the solver's matcher): the rows match_indexed gives, in the
+    """adfusion.starid.kernels.match (the solver's matcher): the rows match_indexed gives, in the
     same order — with the mirror check decided or not — and the faithful set; the work
     array is left as it was found."""
-    from starid import kernels
+    from adfusion.starid import kernels
 
     v, idx = small_sky
     drawn = noisy_pattern(v, seed, n, tol_deg)
@@ -394,7 +395,7 @@ def test_compiled_match_gives_the_rows_of_match_indexed(small_sky, seed, n, tol_
 def test_the_last_level_counts_against_the_work_budget(small_sky):
     """A pattern whose complete assignments outnumber the budget trips it (memory for the
     quick checks stays bounded), in both matchers, at the last level."""
-    from starid import kernels
+    from adfusion.starid import kernels
 
     v, idx = small_sky
     ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
@@ -419,7 +420,7 @@ def test_compiled_match_past_the_index_reach(small_sky):
     """A triangle whose (1, 2) side is longer than the index's reach (its pair list holds
     no such pair; match_indexed tests that link directly): the kernel gives the same rows,
     the triangle among them."""
-    from starid import kernels
+    from adfusion.starid import kernels
 
     v, idx = small_sky
     ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
@@ -449,7 +450,7 @@ def test_compiled_match_past_the_index_reach(small_sky):
 def test_compiled_match_mirror_and_work_budget(small_sky):
     """The mirror image of a triangle is not matched, the true one is; over the work
     budget the kernel reports what WorkBudgetExceeded says, at the same level."""
-    from starid import kernels
+    from adfusion.starid import kernels
 
     v, idx = small_sky
     ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
@@ -494,8 +495,8 @@ def test_compiled_match_mirror_and_work_budget(small_sky):
 def test_compiled_rotation_equals_the_svd_one():
     """The kernels' Jacobi SVD gives the rotation of starid.solver._rotation_from_pairs
     (to rounding scaled by the problem's conditioning), and the same collinear verdict."""
-    from starid import kernels
-    from starid.solver import _rotation_from_pairs
+    from adfusion.starid import kernels
+    from adfusion.starid.solver import _rotation_from_pairs
 
     rng = np.random.default_rng(0)
     collinear = 0

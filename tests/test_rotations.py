@@ -5,12 +5,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+from adfusion.starid import rotations as rot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
-
-from starid import rotations as rot
 
 TOL = 1e-12
 
@@ -210,12 +209,6 @@ def test_vectorised_shapes():
     assert rot.skew(np.ones((2, 3))).shape == (2, 3, 3)
     a, b = np.random.default_rng(0).normal(size=(2, 3))
     np.testing.assert_allclose(rot.skew(a) @ b, np.cross(a, b), atol=TOL)
-
-
-def test_adfusion_reexports_the_same_module():
-    import adfusion.rotations
-
-    assert adfusion.rotations.multiply is rot.multiply
 
 
 def test_multiply_one_pair_equals_the_batched_product_bit_for_bit():

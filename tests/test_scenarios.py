@@ -9,10 +9,10 @@ import json
 
 import numpy as np
 import pytest
+from adfusion.sensors.scenarios import KINDS, Event, Scenario, leo, oedipus
+from adfusion.starid import rotations as rot
 
-import starid
-from sensors.scenarios import KINDS, Event, Scenario, leo, oedipus
-from starid import rotations as rot
+from adfusion import starid
 
 
 def digest(events: list[Event]) -> str:

@@ -6,8 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
-
-from starid.search_order import combination_order
+from adfusion.starid.search_order import combination_order
 
 
 def _notmodus(n_det: int, n: int = 6) -> list[tuple[int, ...]]:

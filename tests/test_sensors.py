@@ -10,12 +10,9 @@ from datetime import UTC, datetime, timedelta, timezone
 
 import numpy as np
 import pytest
-
-import sensors
-import starid
-from sensors.dynamics import simulate_rate_profile, simulate_rigid_body
-from sensors.gyro import GyroModel, allan_deviation
-from sensors.magnetometer import (
+from adfusion.sensors.dynamics import simulate_rate_profile, simulate_rigid_body
+from adfusion.sensors.gyro import GyroModel, allan_deviation
+from adfusion.sensors.magnetometer import (
     MagnetometerModel,
     field_ecef_nT,
     field_enu_nT,
@@ -25,7 +22,7 @@ from sensors.magnetometer import (
     r_ecef_enu,
     r_icrs_ecef,
 )
-from sensors.render import (
+from adfusion.sensors.render import (
     Intensifier,
     Planet,
     SensorModel,
@@ -34,8 +31,10 @@ from sensors.render import (
     render_sky,
     render_stars,
 )
-from starid import rotations as rot
-from starid.camera import Camera
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+
+from adfusion import sensors, starid
 
 # --------------------------------------------------------------------------------------------
 # Gyro

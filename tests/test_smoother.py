@@ -6,22 +6,22 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
+from adfusion.logs import McapLogReader
+from adfusion.sensors.scenarios import leo, oedipus
+from adfusion.starid import rotations as rot
+from adfusion.starid.catalog import Catalog
+from adfusion.starid.solver import Solver
 
-from adfusion.estimator import Estimator
-from adfusion.faults import WrongMatchInjector
-from adfusion.pipeline import replay, simulate
-from adfusion.smoother import (
+from adfusion.app.pipeline import replay, simulate
+from adfusion.estimation.estimator import Estimator
+from adfusion.estimation.faults import WrongMatchInjector
+from adfusion.estimation.smoother import (
     SmootherError,
     SmootherInput,
     _wnoa_factor,
     calibrate_star_noise,
     smooth,
 )
-from logs import McapLogReader
-from sensors.scenarios import leo, oedipus
-from starid import rotations as rot
-from starid.catalog import Catalog
-from starid.solver import Solver
 
 # --- pieces ------------------------------------------------------------------------------
 
@@ -192,7 +192,7 @@ def test_replay_smooth_writes_the_smoothed_history_and_beats_the_filter(oedipus_
 
 
 def test_cli_replay_smooth_and_report_draw_both_histories(oedipus_flight, tmp_path, capsys):
-    from adfusion.cli import main
+    from adfusion.app.cli import main
 
     _, sim = oedipus_flight
     out = tmp_path / "rep.mcap"

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from adfusion.starid import rotations as rot
+from adfusion.starid.view import stars_in_view
 
-import starid
-from starid import rotations as rot
-from starid.view import stars_in_view
+from adfusion import starid
 
 
 @pytest.fixture(scope="module")
@@ -172,10 +172,9 @@ def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
 def _quick_check_numpy(solver, b_all, sel, assign, cam, angles, tol, trials, mirror):
     """The quick check as the numpy solver computed it (KD-tree association, scipy's
     binomial tail, starid.verify's chance estimate): the reference for the kernel."""
+    from adfusion.starid.solver import _keeps_pattern, _one_to_one, _rotation_from_pairs
+    from adfusion.starid.verify import binomial_tail, expected_chance_patterns
     from scipy.spatial import cKDTree
-
-    from starid.solver import _keeps_pattern, _one_to_one, _rotation_from_pairs
-    from starid.verify import binomial_tail, expected_chance_patterns
 
     R = _rotation_from_pairs(b_all[sel], solver.vectors[assign])
     if R is None:
@@ -202,7 +201,7 @@ def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
     pairs' angles come from arccos of dot products: one ulp of a cosine, summed in
     another order or with FMA by BLAS, moves a 1° angle by ~1e-14 rad, ~1e-11 of a
     window)."""
-    from starid.nstar import closest_pair_first
+    from adfusion.starid.nstar import closest_pair_first
 
     rng = np.random.default_rng(5)
     seen = rejected = 0
@@ -242,10 +241,9 @@ def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
 
 
 def test_compiled_binomial_tail_and_chance_estimate_equal_the_reference():
+    from adfusion.starid import kernels
+    from adfusion.starid.verify import binomial_tail, expected_chance_patterns, spot_geometry
     from scipy.stats import binom
-
-    from starid import kernels
-    from starid.verify import binomial_tail, expected_chance_patterns, spot_geometry
 
     for m in (0, 1, 5, 20, 30):
         for k in range(-1, m + 2):
@@ -551,9 +549,8 @@ def test_tracking_refuses_a_two_star_fix_that_leaves_the_roll_open(cat, cam, sol
 def test_compiled_nearest_star_equals_the_kd_tree(solver):
     """Association in the kernel scans the anchor's neighbour row in an annulus (or every
     star, beyond the row's reach): the nearest star within the radius, as a KD-tree gives."""
+    from adfusion.starid import kernels
     from scipy.spatial import cKDTree
-
-    from starid import kernels
 
     rng = np.random.default_rng(9)
     v = solver.vectors

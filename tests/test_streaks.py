@@ -10,11 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from starid import rotations as rot
-from starid.attitude import refine_streaked, streak_vectors, wahba_unit
-from starid.camera import Camera
-from starid.solver import Prior
+from adfusion.starid import rotations as rot
+from adfusion.starid.attitude import refine_streaked, streak_vectors, wahba_unit
+from adfusion.starid.camera import Camera
+from adfusion.starid.solver import Prior
 
 
 def _pieces(rng, q, r, smear, sigma, whole):
@@ -79,8 +78,8 @@ def test_tracking_on_rendered_streaks_accepts_no_wrong_attitude():
     """Rendered frames at 10 °/s over 0.1 s (1° streaks, 68 px), through ``detect``, with
     the rate sweep's filter-like prior — which carries the smear. Frames 139, 163, 203,
     223 and 346 were accepted 9–19 px off by the isotropic tracking fit."""
-    from adfusion import bench_starid as bs
-    from adfusion.bench_sweep import SWEEPS
+    from adfusion.bench import starid as bs
+    from adfusion.bench.sweep import SWEEPS
 
     cond = SWEEPS["rate_deg_s"].condition(10.0).resolved(0.1, 6.0, mag_noise=0.1,
                                                            fov_deg=15.0)
@@ -101,7 +100,7 @@ def test_tracking_on_rendered_streaks_accepts_no_wrong_attitude():
 
 def test_estimator_hands_the_exposure_rotation_to_tracking():
     """The prior's smear is the rate estimate (gyro less bias) in camera axes × exposure."""
-    from adfusion.estimator import Estimator
+    from adfusion.estimation.estimator import Estimator
 
     with pytest.raises(ValueError, match="exposure_s"):
         Estimator(None, exposure_s=-0.01)

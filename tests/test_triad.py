@@ -15,15 +15,14 @@ import math
 from collections import Counter
 from pathlib import Path
 
+import adfusion.starid.triad as triad_module
 import numpy as np
 import pytest
 import yee_fixtures as yf
-
-import starid.triad as triad_module
-from starid import rotations as rot
-from starid.camera import Camera
-from starid.catalog import Catalog
-from starid.triad import (
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
+from adfusion.starid.triad import (
     PlateDivergenceError,
     SeparationDatabase,
     TriadParams,

@@ -6,11 +6,8 @@ import math
 
 import numpy as np
 import pytest
-
-from adfusion.mekf import MEKF
-from adfusion.ukf import UKF, grp_from_quaternion, quaternion_from_grp
-from starid import rotations as rot
-from tests.test_mekf import (
+from adfusion.starid import rotations as rot
+from test_mekf import (
     DEG_PER_H,
     ORBIT_PERIOD,
     bias_guard_run,
@@ -20,6 +17,9 @@ from tests.test_mekf import (
     mag_run,
     monte_carlo,
 )
+
+from adfusion.estimation.mekf import MEKF
+from adfusion.estimation.ukf import UKF, grp_from_quaternion, quaternion_from_grp
 
 
 def test_grp_round_trip_and_small_angle_equals_rotation_vector() -> None:

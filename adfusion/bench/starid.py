@@ -30,7 +30,7 @@ same sky; the perturbations depend on ``(seed, i, condition)``. Any frame can be
 :func:`make_frame` from the seed, the index and the condition. A :class:`Condition` may also
 set the FOV, the magnitude noise, or a body rate — then the frame is *rendered* with motion
 blur and its centroids come from :func:`starid.detect` (:func:`render_frame_for`); the
-robustness sweeps (:mod:`adfusion.bench_sweep`) are conditions of this model, scored by
+robustness sweeps (:mod:`adfusion.bench.sweep`) are conditions of this model, scored by
 :func:`score` per trial and :func:`aggregate` per condition. ``ours_tracking`` (ours with a
 filter-like prior, :func:`tracking_prior`) can join the solvers.
 
@@ -60,7 +60,7 @@ condition's centroid σ (ours through ``centroid_sigma_px``, the peers through
 
 Example:
     >>> import argparse
-    >>> from adfusion import bench_starid
+    >>> from adfusion.bench import starid as bench_starid
     >>> p = argparse.ArgumentParser()
     >>> bench_starid.add_arguments(p)
     >>> args = p.parse_args(["--frames", "3", "--conditions", "clean", "--solvers", "ours",
@@ -229,11 +229,11 @@ def _cond_key(name: str) -> int:
 def random_attitude(seed: int, index: int) -> NDArray[np.float64]:
     """Uniformly random ``q_cam_icrs`` for frame ``index`` (the same in every condition).
 
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> bool(np.allclose(random_attitude(0, 5), random_attitude(0, 5)))
     True
     """
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
     rng = np.random.default_rng([seed, index])
     return rot.normalize(rng.normal(size=4))
@@ -247,15 +247,15 @@ def make_frame(catalog, camera, cond: Condition, seed: int, index: int,
     ``camera`` be the condition's (:func:`camera_for`). ``cond.mag_noise``, when set, replaces
     ``mag_noise``. A condition with ``rate_deg_s`` is rendered (:func:`render_frame_for`).
 
-    >>> import starid
-    >>> from starid.catalog import Catalog
+    >>> from adfusion import starid
+    >>> from adfusion.starid.catalog import Catalog
     >>> cat = Catalog.hipparcos(mag_limit=6.0, epoch=2025.0)
     >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
     >>> f = make_frame(cat, cam, CONDITIONS["false3"].resolved(0.1, 6.0), seed=0, index=7)
     >>> int(np.count_nonzero(f.cat_ids < 0)), f.xy.shape[1]
     (3, 2)
     """
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
     if cond.rate_deg_s is not None:
         return render_frame_for(catalog, camera, cond, seed, index)
@@ -305,8 +305,8 @@ def render_frame_for(catalog, camera, cond: Condition, seed: int, index: int) ->
     point of the condition (its default rejects blobs longer than 3:1 as satellite trails).
     A detection within 3 px of a star's mid-exposure position is that star (``cat_ids``).
 
-    >>> import starid
-    >>> from starid.catalog import Catalog
+    >>> from adfusion import starid
+    >>> from adfusion.starid.catalog import Catalog
     >>> cat = Catalog.hipparcos(mag_limit=5.0, epoch=2025.0)
     >>> cam = starid.Camera.pinhole(256, 192, fov_x_deg=15.0)
     >>> f = render_frame_for(cat, cam, Condition("r", rate_deg_s=1.0), seed=0, index=3)
@@ -315,8 +315,8 @@ def render_frame_for(catalog, camera, cond: Condition, seed: int, index: int) ->
     """
     from scipy.spatial import cKDTree
 
-    import starid
-    from sensors.render import SensorModel, render_frame
+    from adfusion import starid
+    from adfusion.sensors.render import SensorModel, render_frame
 
     if cond.n_false or cond.drop_frac:  # (sigma_px only tells the solvers what to expect)
         raise ValueError(f"{cond.name}: a rendered condition takes no synthetic perturbations")
@@ -343,8 +343,7 @@ def camera_for(cond: Condition, width: int, height: int, fov_deg: float = 15.0):
     >>> round(camera_for(Condition("x", fov_deg=20.0), 1024, 768).fov_x_deg, 9)
     20.0
     """
-    import starid
-
+    from adfusion import starid
     fov = fov_deg if cond.fov_deg is None else cond.fov_deg
     return starid.Camera.pinhole(width, height, fov_x_deg=float(fov))
 
@@ -405,15 +404,15 @@ def frame_error_px(q_est: NDArray[np.float64], q_true: NDArray[np.float64], came
     The directions the true attitude puts at the four corners and the centre are projected
     with the estimate; ``inf`` if one falls behind the camera.
 
-    >>> import starid
-    >>> from starid import rotations as rot
+    >>> from adfusion import starid
+    >>> from adfusion.starid import rotations as rot
     >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
     >>> q = rot.q_cam_icrs_from_radec_roll(0.1, 0.2, 0.3)
     >>> dq = rot.exp_map([0.0, 0.0, np.radians(0.1)])      # 0.1° of roll
     >>> round(frame_error_px(rot.multiply(dq, q), q, cam), 2)
     1.12
     """
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
     xy = np.vstack([camera.corners(), [[camera.K[0, 2], camera.K[1, 2]]]])
     v_icrs = rot.rotate(rot.inverse(q_true), camera.pixels_to_vectors(xy))
@@ -475,13 +474,13 @@ def score(frame: Frame, outcome: _Outcome, camera, tol_px: float, catalog=None) 
     star — by the frame's truth ids, or, on a streaked frame (``catalog`` needed), lying
     within 2 px of that star's path during the exposure.
 
-    >>> import starid
+    >>> from adfusion import starid
     >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
     >>> f = Frame("x", 0, random_attitude(0, 0), np.zeros((5, 2)), np.arange(5), 5)
     >>> score(f, _Outcome(True, f.q_cam_icrs, 0.001), cam, 5.0).verdict
     'correct'
     """
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
     err_px = err_deg = path_px = None
     verdict = "failed"
@@ -513,7 +512,7 @@ def score(frame: Frame, outcome: _Outcome, camera, tol_px: float, catalog=None) 
 def _stars_right(frame: Frame, matches: Sequence[tuple[int, int]], camera,
                  catalog) -> float | None:
     """Share of (detection, catalogue id) matches that are right (see :func:`score`)."""
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
     if frame.omega_cam_rad_s is None:
         return float(np.mean([frame.cat_ids[d] == c for d, c in matches]))
@@ -709,7 +708,7 @@ def solver_for(mag_limit: float, sigma_px: float, camera, epoch: float = 2025.0)
 
     ``centroid_sigma_px`` is ``max(0.5, σ)``, as a user would configure a camera.
     """
-    from starid.solver import Solver
+    from adfusion.starid.solver import Solver
 
     sigma = max(0.5, float(sigma_px))
     key = (float(mag_limit), sigma, camera.width, camera.height, round(camera.fov_x_deg, 9),
@@ -730,7 +729,7 @@ class _Ours(_Adapter):
         self._params: dict[str, Any] = {}
 
     def setup(self, cond: Condition, camera) -> None:
-        from starid.index import PatternIndex
+        from adfusion.starid.index import PatternIndex
 
         limit = float(cond.mag_limit if cond.mag_limit is not None else self.cfg.mag_limit)
         s = solver_for(limit, float(cond.sigma_px or 0.0), camera, self.cfg.epoch)
@@ -781,12 +780,12 @@ def tracking_prior(frame: Frame, sigma_deg: float):
 
     >>> f = Frame("x", 4, random_attitude(0, 4), np.zeros((0, 2)), np.zeros(0, np.int64), 0)
     >>> p = tracking_prior(f, 0.1)
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> float(np.degrees(rot.angle_between(p.q_cam_icrs, f.q_cam_icrs))) < 0.6, p.sigma_deg
     (True, 0.1)
     """
-    from starid import rotations as rot
-    from starid.solver import Prior
+    from adfusion.starid import rotations as rot
+    from adfusion.starid.solver import Prior
 
     rng = np.random.default_rng([frame.seed, frame.index, _cond_key(frame.condition), 1])
     dtheta = np.radians(sigma_deg) * rng.normal(size=3)
@@ -831,7 +830,7 @@ class _Tetra3rs(_Adapter):
         key = (mag_limit, round(fov_deg, 6))
         if key in self._dbs:
             return self._dbs[key]
-        from starid.cache import cache_key
+        from adfusion.starid.cache import cache_key
 
         params = {
             "tetra3rs": self.t3.__version__, "max_fov_deg": key[1],
@@ -1006,7 +1005,7 @@ class _Cedar(_Adapter):
         return xy[:, ::-1] + 0.5
 
     def solve(self, frame: Frame) -> _Outcome:
-        from starid import rotations as rot
+        from adfusion.starid import rotations as rot
 
         assert self.proc.stdin is not None
         if self._dead:
@@ -1054,7 +1053,7 @@ _CATALOGS: dict[tuple[float, float], Any] = {}
 
 
 def _catalog(mag_limit: float, epoch: float):
-    from starid.catalog import Catalog
+    from adfusion.starid.catalog import Catalog
 
     key = (mag_limit, epoch)
     if key not in _CATALOGS:
@@ -1067,7 +1066,7 @@ def _cache_root(cfg: BenchConfig) -> tuple[Path, tempfile.TemporaryDirectory | N
         p = Path(cfg.cache_dir).expanduser()
         p.mkdir(parents=True, exist_ok=True)
         return p, None
-    from starid.cache import cache_dir
+    from adfusion.starid.cache import cache_dir
 
     root = cache_dir()
     if root is not None:
@@ -1094,8 +1093,7 @@ def _code_version() -> dict[str, Any]:
     """Git commit of the checkout and the sha-256 of starid's sources (the tree may be dirty)."""
     import hashlib
 
-    import starid
-
+    from adfusion import starid
     root = Path(starid.__file__).resolve().parent
     h = hashlib.sha256()
     for f in sorted(root.glob("*.py")):
@@ -1120,7 +1118,7 @@ def _conversion_check(adapters: Sequence[_Adapter], cfg: BenchConfig, camera,
 
     Doubles as the warm-up, so first-call costs stay out of the timings.
     """
-    from starid import rotations as rot
+    from adfusion.starid import rotations as rot
 
     cond = Condition("conversion-check", sigma_px=0.0, mag_limit=cfg.mag_limit)
     cat = _catalog(cfg.mag_limit, cfg.epoch)
@@ -1176,8 +1174,7 @@ def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
     """
     from tqdm import tqdm
 
-    import starid
-
+    from adfusion import starid
     unknown = [c for c in cfg.conditions if c not in CONDITIONS]
     if unknown:
         raise ValueError(f"unknown condition(s) {unknown}; choose from {list(CONDITIONS)}")
@@ -1411,7 +1408,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m adfusion.bench_starid [options]``."""
+    """``python -m adfusion.bench.starid [options]``."""
     p = argparse.ArgumentParser(prog="adfusion bench starid",
                                 description="Lost-in-space star identification benchmark: "
                                             "ours vs tetra3rs vs cedar-solve.")

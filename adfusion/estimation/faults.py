@@ -6,7 +6,7 @@ one such match on every ``every``-th identified frame, so a study can count how 
 estimator catches it (the smoother benchmark and its tests do).
 
 Example:
-    >>> import starid
+    >>> from adfusion import starid
     >>> s = WrongMatchInjector(starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
     ...                                      starid.Camera.pinhole(1024, 768, 15.0)), every=50)
     >>> s.wrong
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from starid.attitude import wahba
+from adfusion.starid.attitude import wahba
 
 __all__ = ["WrongMatchInjector"]
 

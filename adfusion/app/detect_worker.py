@@ -3,7 +3,7 @@
 A replay spends about half its time in :func:`starid.detect`, which needs nothing from the
 filter; on two cores it can run beside identification, filtering and logging. It is mostly
 many small numpy calls holding the GIL, so a thread gains nothing; a process does. The
-worker is a fresh interpreter (``python -m adfusion.detect_worker``) talking pickles over
+worker is a fresh interpreter (``python -m adfusion.app.detect_worker``) talking pickles over
 its stdin/stdout — not ``multiprocessing``: forking a process that has used OpenCV can
 deadlock the child (measured here: ``cv2.setNumThreads`` hung in a forked worker), and
 the spawn/forkserver methods re-import the caller's ``__main__``, which breaks scripts
@@ -17,7 +17,7 @@ allocation each; the slot costs one ``memcpy``.
 
 Example:
     >>> import numpy as np
-    >>> from adfusion.detect_worker import DetectWorker
+    >>> from adfusion.app.detect_worker import DetectWorker
     >>> img = np.zeros((40, 40), np.uint8)
     >>> img[10, 10:12] = img[30, 20] = 200
     >>> with DetectWorker() as w:
@@ -94,7 +94,7 @@ class DetectWorker:
         self._slots = int(slots)
         self._fd = -1
         self._tmp = None
-        args = [sys.executable, "-m", "adfusion.detect_worker"]
+        args = [sys.executable, "-m", "adfusion.app.detect_worker"]
         if os.name == "posix":
             if hasattr(os, "memfd_create"):
                 self._fd = os.memfd_create("adfusion-frames", getattr(os, "MFD_CLOEXEC", 0))
@@ -272,7 +272,7 @@ def _serve(fd: int = -1) -> None:
     # ~0.7 ms of CPU per 512×480 frame handing small images between threads (detect took
     # 2.6 ms of CPU on one thread, 3.3 ms on two).
     cv2.setNumThreads(1)
-    from starid import detect
+    from adfusion.starid import detect
 
     keep_freed_memory()  # pickled requests still allocate; see the function
     inp, out = sys.stdin.buffer, sys.stdout.buffer

@@ -4,7 +4,7 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 ``adfusion --help`` is instant.
 
 Example:
-    >>> from adfusion.cli import build_parser
+    >>> from adfusion.app.cli import build_parser
     >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:4]
     ['bench', 'catalog', 'demo', 'detect']
 """
@@ -92,12 +92,12 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks against the peers (tetra3rs, cedar-solve)")
     bsub = b.add_subparsers(dest="bench", metavar="BENCH", required=True)
     bs = bsub.add_parser("starid", help="lost-in-space identification: ours vs the peers")
-    from adfusion import bench_starid
+    from adfusion.bench import starid as bench_starid
 
     bench_starid.add_arguments(bs)
     bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
     sw = bsub.add_parser("sweep", help="robustness sweeps vs the peers (dask campaigns)")
-    from adfusion import bench_sweep
+    from adfusion.bench import sweep as bench_sweep
 
     bench_sweep.add_arguments(sw)
     sw.set_defaults(func=bench_sweep.cli)
@@ -122,13 +122,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
-    import starid
-
+    from adfusion import starid
     if args.example == bool(args.image):
         raise ValueError("give an IMAGE or --example (one of them)")
     truth_xy = None
     if args.example:
-        from adfusion import examples
+        from adfusion.app import examples
 
         ex = examples.example_frame()
         image, camera, truth_xy = ex.image, ex.camera, ex.star_xy
@@ -152,7 +151,7 @@ def cmd_detect(args: argparse.Namespace) -> int:
         ],
     }
     if truth_xy is not None:
-        from adfusion.examples import count_found
+        from adfusion.app.examples import count_found
 
         out["truth_found"] = count_found(det.xy, truth_xy, radius_px=1.0)
         out["truth_total"] = len(truth_xy)
@@ -174,15 +173,15 @@ def cmd_detect(args: argparse.Namespace) -> int:
 def cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
-    import starid
-    from starid.detect import read_image
+    from adfusion import starid
+    from adfusion.starid.detect import read_image
 
     if args.example == bool(args.image):
         raise ValueError("give an IMAGE or --example (one of them)")
     epoch = args.epoch if args.epoch is not None else _julian_year_now()
     truth_q = None
     if args.example:
-        from adfusion import examples
+        from adfusion.app import examples
 
         ex = examples.example_frame()
         image, camera, truth_q = ex.image, ex.camera, ex.q_cam_icrs
@@ -210,7 +209,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.overlay:
         import cv2
 
-        from adfusion.overlay import draw_solution
+        from adfusion.app.overlay import draw_solution
 
         if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
             raise ValueError(f"could not write the overlay to {args.overlay}")
@@ -274,13 +273,13 @@ def _julian_year_now() -> float:
 
 
 def _scenario(name: str, duration: float, seed: int, render: bool):
-    from sensors import scenarios
+    from adfusion.sensors import scenarios
 
     return getattr(scenarios, name)(duration_s=duration, seed=seed, render=render)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from adfusion.pipeline import simulate
+    from adfusion.app.pipeline import simulate
 
     if not args.duration > 0:
         raise ValueError("--duration must be positive")
@@ -293,7 +292,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from adfusion.pipeline import replay
+    from adfusion.app.pipeline import replay
 
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
@@ -304,7 +303,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from adfusion.report import report
+    from adfusion.app.report import report
 
     files = report(args.log, args.output)
     print("\n".join(str(f) for f in files))
@@ -314,8 +313,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from adfusion.pipeline import replay, simulate
-    from adfusion.report import report
+    from adfusion.app.pipeline import replay, simulate
+    from adfusion.app.report import report
 
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
@@ -339,7 +338,7 @@ def _run_bench(module, args: argparse.Namespace) -> int:
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:
-    from starid.catalog import renken_count_table
+    from adfusion.starid.renken import renken_count_table
 
     rows = [dict(zip(("limit", "sao", "ours_V", "ours_Hp"), r, strict=True))
             for r in renken_count_table()]

@@ -158,7 +158,7 @@ def source_digest(*modules: str) -> str:
     """A digest of the Python sources of ``modules`` (packages: all their ``.py`` files).
     Put it into task payloads so that a partial file is not reused after the code changed.
 
-    >>> len(source_digest("starid", "adfusion.campaign"))
+    >>> len(source_digest("adfusion.starid", "adfusion.bench.campaign"))
     16
     """
     import importlib.util

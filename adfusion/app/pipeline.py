@@ -9,8 +9,8 @@ run opens in Foxglove. Both are deterministic: the same input gives identical ou
 
 Example:
     >>> import os, tempfile
-    >>> from sensors.scenarios import oedipus
-    >>> from adfusion.pipeline import simulate, replay
+    >>> from adfusion.sensors.scenarios import oedipus
+    >>> from adfusion.app.pipeline import simulate, replay
     >>> d = tempfile.mkdtemp()
     >>> simulate(oedipus(duration_s=0.5, render=False), os.path.join(d, "sim.mcap"))
     15
@@ -28,13 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from adfusion.detect_worker import keep_freed_memory
-from adfusion.estimator import Estimator, StepRecord
-from logs import LogWriter, McapLogReader
-from starid import rotations as rot
-from starid.camera import Camera
-from starid.catalog import Catalog
-from starid.solver import Solver
+from adfusion.app.detect_worker import keep_freed_memory
+from adfusion.estimation.estimator import Estimator, StepRecord
+from adfusion.logs import LogWriter, McapLogReader
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
+from adfusion.starid.solver import Solver
 
 __all__ = ["ReplaySummary", "replay", "simulate"]
 
@@ -176,7 +176,7 @@ def replay(
     digitised): the filter estimates the body rate from the star fixes themselves.
 
     ``smooth=True`` records every frame's identified stars with the gyro and magnetometer
-    samples and, after the filter pass, smooths the whole log (:mod:`adfusion.smoother`,
+    samples and, after the filter pass, smooths the whole log (:mod:`adfusion.estimation.smoother`,
     ``smooth_mode`` "batch" or "isam2"); the smoothed history goes to ``/smoothed/state``
     and ``/smoothed/pose`` next to the filter's topics. A smoother failure is reported in
     ``summary.smoother["error"]``; the filter's output stands.
@@ -187,7 +187,7 @@ def replay(
     ~0.4 ms of the main process per frame, zstd 1.5× for 1.9 ms; ``"lz4"``, ``"zstd"``
     (smallest) and ``"none"`` choose explicitly.
 
-    Process-wide side effect: :func:`adfusion.detect_worker.keep_freed_memory` (glibc keeps
+    Process-wide side effect: :func:`adfusion.app.detect_worker.keep_freed_memory` (glibc keeps
     freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
     t_start = time.perf_counter()
     keep_freed_memory()
@@ -231,7 +231,7 @@ def _replay(in_path, out_path, ahead: _DetectAhead, t_start: float, *, use_gyro:
     in_view = _InViewCounter(solver, q_body_cam)
     recording, truth_frames = None, []  # for the smoother
     if smooth:
-        from adfusion.smoother import SmootherInput
+        from adfusion.estimation.smoother import SmootherInput
 
         recording = SmootherInput(q_body_cam, arw_rad_sqrt_s=est.arw, rrw_rad_s_sqrt_s=est.rrw,
                                   sigma_mag_rad=est.sigma_mag_rad, video_only=not use_gyro)
@@ -296,7 +296,7 @@ def _copy(log: LogWriter, msg) -> None:
 
 
 class _DetectAhead:
-    """Star detection in a worker process (:class:`adfusion.detect_worker.DetectWorker`),
+    """Star detection in a worker process (:class:`adfusion.app.detect_worker.DetectWorker`),
     ``depth`` frames ahead of the filter, on machines with two or more cores.
 
     :meth:`start` launches the worker (do it early: its interpreter takes ~0.5 s to import
@@ -318,7 +318,7 @@ class _DetectAhead:
         """Launch the worker now (on two or more cores; idempotent)."""
         import os
 
-        from adfusion.detect_worker import DetectWorker
+        from adfusion.app.detect_worker import DetectWorker
 
         if self._worker is None and (os.cpu_count() or 1) >= 2:
             self._worker = DetectWorker()
@@ -359,7 +359,7 @@ class _DetectAhead:
     def __call__(self, frame, camera):
         key = self._keys.pop(id(frame), None)
         if key is None or self._worker is None:  # not submitted (or not read through us)
-            from starid import detect
+            from adfusion.starid import detect
 
             return detect(frame, camera)
         return self._worker.result(key)
@@ -471,8 +471,8 @@ def _view_radius(cam: Camera, margin_rad: float = 0.02) -> float:
 def _smooth_into(log: LogWriter, recording, mode: str, s: ReplaySummary,
                  truth_frames: list[tuple[float, Any]]) -> None:
     """Smooth the recorded log; write ``/smoothed/state`` and ``/smoothed/pose``; score."""
-    from adfusion.smoother import SmootherError
-    from adfusion.smoother import smooth as run_smoother
+    from adfusion.estimation.smoother import SmootherError
+    from adfusion.estimation.smoother import smooth as run_smoother
 
     try:
         res = run_smoother(recording, mode=mode)

@@ -12,20 +12,20 @@ and the gyro bias itself. The quaternion never enters the unscented transform di
 * **update** — the measurement of each sigma point is predicted from its quaternion; after the
   update the error estimate is folded into the reference the same way (the reset).
 
-Conventions are the MEKF's (see :mod:`adfusion.mekf`): the attitude error is on the left in
-the body frame, ``q_true = δq ⊗ q̂``, and with a = 1, f = 4 the GRP vector equals the rotation
-vector to first order (δp = 4 tan(θ/4) n̂), so the filterpy covariance *is* the MEKF's
+Conventions are the MEKF's (see :mod:`adfusion.estimation.mekf`): the attitude error is on
+the left in the body frame, ``q_true = δq ⊗ q̂``, and with a = 1, f = 4 the GRP vector equals
+the rotation vector to first order (δp = 4 tan(θ/4) n̂), so the filterpy covariance *is* the MEKF's
 ``P`` of [δθ, δβ] at the reset point. Process noise: the same Farrenkopf Q as the MEKF
-(:func:`adfusion.mekf.process_noise`); sigma points: Julier's with κ = 1 (all weights
+(:func:`adfusion.estimation.mekf.process_noise`); sigma points: Julier's with κ = 1 (all weights
 positive; Crassidis & Markley's λ = 1).
 
 Measurements mirror the MEKF's exactly: a direction is compared in the 2-D tangent plane of its
 predicted value, an attitude fix as the rotation vector of ``q_meas ⊗ q̂⁻¹``; each update is
-NIS-gated and returns an :class:`~adfusion.mekf.UpdateResult`.
+NIS-gated and returns an :class:`~adfusion.estimation.mekf.UpdateResult`.
 
 Example:
     >>> import numpy as np
-    >>> from adfusion.ukf import UKF
+    >>> from adfusion.estimation.ukf import UKF
     >>> f = UKF([1.0, 0.0, 0.0, 0.0], np.radians(1.0), 1e-6, 1e-6, 1e-9)
     >>> f.propagate(1.0, [0.0, 0.0, 0.01])
     >>> r = f.update_vector([1.0, 0.0, 0.0], [1.0, 0.0, 0.0], sigma_rad=1e-3)
@@ -44,7 +44,7 @@ import numpy as np
 from filterpy.kalman import JulierSigmaPoints, UnscentedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.mekf import (
+from adfusion.estimation.mekf import (
     AttitudeFilter,
     UpdateResult,
     _check_dt_omega,
@@ -57,7 +57,7 @@ from adfusion.mekf import (
     _tangent_basis,
     process_noise,
 )
-from starid import rotations as rot
+from adfusion.starid import rotations as rot
 
 __all__ = ["UKF", "grp_from_quaternion", "quaternion_from_grp"]
 
@@ -154,9 +154,9 @@ def _hx_attitude(s: Array) -> Array:
 
 
 class UKF(AttitudeFilter):
-    """USQUE unscented attitude filter; same interface as :class:`adfusion.mekf.MEKF`.
+    """USQUE unscented attitude filter; same interface as :class:`adfusion.estimation.mekf.MEKF`.
 
-    Constructor arguments: see :class:`adfusion.mekf.AttitudeFilter`; ``kappa`` sets the
+    Constructor arguments: see :class:`adfusion.estimation.mekf.AttitudeFilter`; ``kappa`` sets the
     Julier sigma-point spread (√(n + κ) σ). ``P`` is in the MEKF's error convention
     ([δθ body, δβ]); the underlying ``filterpy`` filter is available as ``.filterpy``.
 

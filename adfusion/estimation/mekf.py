@@ -38,14 +38,14 @@ re-symmetrised after every step. A correction that is large against the measurem
 tens of degrees off) is relinearised and its covariance carried across the reset with the
 SO(3) left Jacobian (see :class:`MEKF`), so that the search cone stays honest in the transient.
 
-:class:`AttitudeFilter` holds what the MEKF and the UKF (:mod:`adfusion.ukf`) share — the
+:class:`AttitudeFilter` holds what the MEKF and the UKF (:mod:`adfusion.estimation.ukf`) share — the
 interface, input validation, gating, the camera mounting — so scripts swap one for the other.
 The hot path works on Python floats for 3- and 4-vectors and on numpy only for the 6×6
 algebra: a numpy call on a 4-vector costs about a microsecond, more than the arithmetic.
 
 Example:
     >>> import numpy as np
-    >>> from adfusion.mekf import MEKF
+    >>> from adfusion.estimation.mekf import MEKF
     >>> f = MEKF([1.0, 0.0, 0.0, 0.0], sigma_attitude_rad=0.01, sigma_bias_rad_s=1e-5,
     ...          arw_rad_sqrt_s=1e-6, rrw_rad_s_sqrt_s=1e-9)
     >>> f.propagate(1.0, [0.0, 0.0, 0.001])
@@ -66,7 +66,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from starid import rotations as rot
+from adfusion.starid import rotations as rot
 
 __all__ = [
     "MEKF",

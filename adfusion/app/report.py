@@ -8,9 +8,9 @@ smoother's history too: its error and 3σ bound, and its bias, are drawn next to
 
 Example:
     >>> import os, tempfile
-    >>> from sensors.scenarios import oedipus
-    >>> from adfusion.pipeline import simulate, replay
-    >>> from adfusion.report import report
+    >>> from adfusion.sensors.scenarios import oedipus
+    >>> from adfusion.app.pipeline import simulate, replay
+    >>> from adfusion.app.report import report
     >>> d = tempfile.mkdtemp()
     >>> _ = simulate(oedipus(duration_s=0.5, render=False), os.path.join(d, "s.mcap"))
     >>> _ = replay(os.path.join(d, "s.mcap"), os.path.join(d, "o.mcap"), progress=False)
@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from logs import McapLogReader
-from starid import rotations as rot
+from adfusion.logs import McapLogReader
+from adfusion.starid import rotations as rot
 
 __all__ = ["report"]
 

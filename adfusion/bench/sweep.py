@@ -15,21 +15,21 @@ fov_deg        10°, 20°, 45°                               synthetic
 rate_deg_s     0, 0.5, 1, 2, 5, 10 °/s, 0.1 s exposure     rendered, streaked, ``detect``
 =============  ==========================================  ===============================
 
-A sweep point *is* a :class:`adfusion.bench_starid.Condition` (named ``"n_false=3"`` …):
+A sweep point *is* a :class:`adfusion.bench.starid.Condition` (named ``"n_false=3"`` …):
 frames, solver set-up, the correctness test and the statistics are those of ``bench
-starid`` (:func:`~adfusion.bench_starid.make_frame`, :func:`~adfusion.bench_starid.score`,
-:func:`~adfusion.bench_starid.aggregate`). Frame *i* of every point has the same attitude
+starid`` (:func:`~adfusion.bench.starid.make_frame`, :func:`~adfusion.bench.starid.score`,
+:func:`~adfusion.bench.starid.aggregate`). Frame *i* of every point has the same attitude
 (``(seed, i)``); its perturbations come from ``(seed, i, point)``. Per point and solver:
 availability, error rate with its 95 % Clopper–Pearson upper bound, time p50 (``median``)
 / p95 / max, for
 
 * ``ours`` — lost-in-space;
 * ``ours_tracking`` — the same solver with a filter-like prior (the true attitude tilted
-  by N(0, 0.1°) per axis, ``sigma_deg`` 0.1: :func:`~adfusion.bench_starid.tracking_prior`);
+  by N(0, 0.1°) per axis, ``sigma_deg`` 0.1: :func:`~adfusion.bench.starid.tracking_prior`);
 * ``tetra3rs`` and ``cedar`` (cedar-solve in its own venv), on the identical centroid lists,
   timed inside their own process.
 
-The campaign runs on ``dask.distributed`` (:mod:`adfusion.campaign`): tasks are (point,
+The campaign runs on ``dask.distributed`` (:mod:`adfusion.bench.campaign`): tasks are (point,
 chunk of trial indices); ``--workers N`` local processes (default: the CPU count) or
 ``--scheduler tcp://HOST:PORT``; results are identical for any worker count, finished
 chunks go to a partial file as they arrive (a rerun resumes).
@@ -58,9 +58,9 @@ from typing import Any
 
 import numpy as np
 
-from adfusion import bench_starid as bs
-from adfusion import campaign
-from adfusion.bench_starid import Condition
+from adfusion.bench import campaign
+from adfusion.bench import starid as bs
+from adfusion.bench.starid import Condition
 
 __all__ = [
     "SOLVERS",
@@ -163,8 +163,8 @@ class SweepConfig(bs.FrameModel):
     def job(self, solvers: Sequence[str], cache_dir: str | None) -> Job:
         """The part of the configuration a task needs (and that its results depend on,
         including the code: a partial file is not reused after it changed)."""
-        code = campaign.source_digest("starid", "sensors", "adfusion.bench_starid",
-                                      "adfusion.bench_sweep")
+        code = campaign.source_digest("adfusion.starid", "adfusion.sensors",
+                                      "adfusion.bench.starid", "adfusion.bench.sweep")
         return Job(self.seed, self.width, self.height, self.fov_deg, self.mag_limit,
                    self.sigma_px, self.mag_noise, self.tol_px, self.tol_sigma, self.epoch,
                    tuple(solvers), self.prior_sigma_deg, self.peer_timeout_ms, cache_dir,
@@ -233,7 +233,7 @@ def run_chunk(payload: tuple[Job, Condition, int, int]) -> dict[str, Any]:
     """The campaign task: trials ``[start, stop)`` of one point, every solver, scored.
 
     Returns ``{"frames": [[n_true, n_centroids, n_in_view], …], "trials": {solver: [row,
-    …]}}`` (rows of :class:`adfusion.bench_starid.Trial`). Runs on a dask worker (or in this
+    …]}}`` (rows of :class:`adfusion.bench.starid.Trial`). Runs on a dask worker (or in this
     process); solvers, catalogues and indexes are built once per worker process.
     """
     job, cond, start, stop = payload
@@ -701,7 +701,7 @@ def cli(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m adfusion.bench_sweep [options]``."""
+    """``python -m adfusion.bench.sweep [options]``."""
     p = argparse.ArgumentParser(prog="adfusion bench sweep",
                                 description="Robustness sweeps: ours vs tetra3rs vs "
                                             "cedar-solve, on dask.distributed.")

@@ -29,7 +29,7 @@ negative because of the −I coupling); at 180°/s and 30 Hz the rotation terms 
 
 Propagation integrates the quaternion exactly for the constant estimated rate,
 ``q ← Exp(−ω̂Δt) ⊗ q``; it needs no measurement (a gyro sample passed in is ignored, so the
-:class:`~adfusion.estimator.Estimator` can drive this filter like the MEKF). Measurement
+:class:`~adfusion.estimation.estimator.Estimator` can drive this filter like the MEKF). Measurement
 updates (attitude fixes, star or magnetometer directions, their camera-frame variants), the
 NIS gate, the Joseph form, the iterated/left-Jacobian handling of large corrections and the
 reset are the MEKF's, inherited unchanged: the measurements do not depend on the second
@@ -41,7 +41,7 @@ code written against the MEKF interface runs); the estimated rate is
 
 Example:
     >>> import numpy as np
-    >>> from adfusion.ratefilter import RateMEKF
+    >>> from adfusion.estimation.ratefilter import RateMEKF
     >>> f = RateMEKF([1.0, 0.0, 0.0, 0.0], sigma_attitude_rad=1e-3, sigma_rate_rad_s=1.0,
     ...              sigma_rate_walk_rad_s_sqrt_s=1e-3)
     >>> cov = np.eye(3) * 1e-8
@@ -67,7 +67,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.mekf import MEKF, _phi_rows, _qexp, _qmul, _qnormalize, _series_coeffs, _symmetrize
+from adfusion.estimation.mekf import (
+    MEKF,
+    _phi_rows,
+    _qexp,
+    _qmul,
+    _qnormalize,
+    _series_coeffs,
+    _symmetrize,
+)
 
 __all__ = ["RateMEKF", "rate_process_noise", "rate_transition_matrix"]
 
@@ -96,7 +104,8 @@ def _skew(x: float, y: float, z: float) -> Array:
 def rate_transition_matrix(omega_rad_s: ArrayLike, dt: float) -> Array:
     """Discrete error-state transition Φ (6×6) of [δθ, δω] over ``dt`` at constant rate ω̂.
 
-    The MEKF's closed form (:func:`adfusion.mekf.transition_matrix`) with Φ₁₂ negated: the
+    The MEKF's closed form (:func:`adfusion.estimation.mekf.transition_matrix`) with Φ₁₂
+    negated: the
     rate error enters the attitude error with −I (see the module docstring).
 
     >>> phi = rate_transition_matrix([0.0, 0.0, 0.0], 2.0)
@@ -158,7 +167,7 @@ class RateMEKF(MEKF):
         omega0_rad_s: initial rate estimate (rad/s, body frame); default zero.
         q_body_cam: body-to-camera mounting (camera → body); default identity.
         gate_probability: chi-square probability of the NIS gate; ``None`` disables it.
-        relinearize_tol: as in :class:`~adfusion.mekf.MEKF`.
+        relinearize_tol: as in :class:`~adfusion.estimation.mekf.MEKF`.
 
     Interface: the MEKF's (:meth:`propagate`, ``update_attitude``, ``update_vector``,
     ``update_camera_attitude``, ``update_camera_vector``, ``q_body_icrs``, ``q_cam_icrs``,

@@ -11,7 +11,7 @@ Drawn with OpenCV on a contrast-stretched copy of the frame:
 
 Example:
     >>> import numpy as np
-    >>> from adfusion.overlay import stretch
+    >>> from adfusion.app.overlay import stretch
     >>> stretch(np.array([[0, 10], [20, 30000]], dtype=np.uint16)).dtype.name
     'uint8'
 """

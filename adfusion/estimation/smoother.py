@@ -71,8 +71,8 @@ Design (decisions, and the measurements behind them):
 
 Example (synthetic, no camera: stars seen from a body turning at 0.2 rad/s, gyro at 100 Hz):
     >>> import numpy as np
-    >>> from starid import rotations as rot
-    >>> from adfusion.smoother import SmootherInput, smooth
+    >>> from adfusion.starid import rotations as rot
+    >>> from adfusion.estimation.smoother import SmootherInput, smooth
     >>> rng = np.random.default_rng(0)
     >>> w = np.array([0.0, 0.0, 0.2])
     >>> q_true = lambda t: rot.multiply(rot.exp_map(-w * t), [1.0, 0, 0, 0])
@@ -102,7 +102,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from starid import rotations as rot
+from adfusion.starid import rotations as rot
 
 __all__ = ["FrameData", "SmoothResult", "SmootherError", "SmootherInput",
            "calibrate_star_noise", "smooth"]
@@ -243,7 +243,7 @@ class SmootherInput:
             opt(cov_fix, (3, 3)), bool(accepted)))
 
     def add_step(self, t: float, rec: Any, solver: Any) -> None:
-        """A camera frame from an :class:`adfusion.estimator.StepRecord` and its solver.
+        """A camera frame from an :class:`adfusion.estimation.estimator.StepRecord` and its solver.
 
         The identified stars come from ``rec.solution.matches`` (detection index, catalogue
         id) with ``rec.detections_xy`` through the solution's camera, mounted into the body
@@ -379,7 +379,7 @@ def calibrate_star_noise(
     Returns (σ0 rad, k s, number of residuals used); NaNs and 0 without a usable frame.
 
     >>> import numpy as np
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> rng = np.random.default_rng(1)
     >>> r = [rot.radec_to_vector(rng.uniform(0, 0.3, 12), rng.uniform(0, 0.3, 12))
     ...      for _ in range(200)]
@@ -388,7 +388,7 @@ def calibrate_star_noise(
     >>> round(s0 / 2e-4, 1), k, n
     (1.0, 0.0, 2400)
     """
-    from starid.attitude import wahba_unit
+    from adfusion.starid.attitude import wahba_unit
 
     rows = []  # per star: frame, predicted direction, residual, motion basis, speed
     nf = 0
@@ -874,7 +874,7 @@ def _star_covariances(b: Array, omega: Array, sigma0: float, k: float) -> Array:
 def _initial_attitudes(frames: list[FrameData], t: Array) -> tuple[list, Array]:
     """Per frame the filter's estimate, else the fix, else a Wahba fit of its stars (None
     where there is nothing); biases from the nearest frame that has one (else zero)."""
-    from starid.attitude import wahba_unit
+    from adfusion.starid.attitude import wahba_unit
 
     q0: list[Array | None] = []
     for f in frames:

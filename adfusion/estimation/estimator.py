@@ -19,9 +19,9 @@ Deterministic: the same inputs give bit-identical outputs (no clocks, no randomn
 
 Example:
     >>> import numpy as np
-    >>> import starid
-    >>> from adfusion.estimator import Estimator
-    >>> from adfusion.examples import example_frame
+    >>> from adfusion import starid
+    >>> from adfusion.estimation.estimator import Estimator
+    >>> from adfusion.app.examples import example_frame
     >>> ex = example_frame()
     >>> cat = starid.Catalog.hipparcos(mag_limit=6.5)
     >>> est = Estimator(starid.Solver(cat, ex.camera))
@@ -38,9 +38,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.mekf import MEKF
-from starid import rotations as rot
-from starid.solver import Prior, Solution, Solver
+from adfusion.estimation.mekf import MEKF
+from adfusion.starid import rotations as rot
+from adfusion.starid.solver import Prior, Solution, Solver
 
 __all__ = ["Estimator", "StepRecord"]
 
@@ -85,7 +85,7 @@ class Estimator:
             residuals and timing make a perfectly confident prediction wrong).
         sigma_mag_rad: 1-σ direction error of a magnetometer update (field model and
             hard/soft-iron residuals dominate, hence a degree by default).
-        video_only: no gyro — the filter is :class:`adfusion.ratefilter.RateMEKF`, which
+        video_only: no gyro — the filter is :class:`adfusion.estimation.ratefilter.RateMEKF`, which
             estimates the body rate itself (constant rate plus a random walk of spectral
             density ``rate_walk_rad_s_sqrt_s``, initial 1-σ ``sigma_rate0_rad_s``); its
             prediction drives tracking between frames as the gyro would.
@@ -159,7 +159,7 @@ class Estimator:
 
     def _make_filter(self, q_body_icrs: NDArray, sigma_att_rad: float):
         if self.video_only:
-            from adfusion.ratefilter import RateMEKF
+            from adfusion.estimation.ratefilter import RateMEKF
 
             return RateMEKF(q_body_icrs, sigma_att_rad, self.sigma_rate0, self.rate_walk)
         return self.filter_factory(q_body_icrs, sigma_att_rad, self.sigma_bias0, self.arw,
@@ -226,8 +226,7 @@ class Estimator:
         if detections is None:
             detect = self._detect
             if detect is None:
-                import starid
-
+                from adfusion import starid
                 detect = starid.detect
             try:
                 detections = detect(frame, self.solver.camera)
