@@ -7,15 +7,17 @@ turned into the camera frame) smears the stars over the exposure, and the detect
 adds its noise. The frame, with its truth (attitude, stars in view), is kept on the module
 (``latest``) for the navigation module to take; images are not Basilisk messages.
 
-Stray light: with ``earth_keepout_deg``, a frame taken while the Earth's limb is within that
-angle of the boresight is flooded (the baffle's exclusion angle: the sky background rises to
-the full well), the way the Earth or Sun in view blinds a real tracker.
+Stray light: a frame is flooded (the sky background rises past the full well, the way the
+Sun or the Earth in view blinds a real tracker) inside any of ``blind_windows`` (time
+intervals, s), or with ``earth_keepout_deg`` while the Earth's limb is within that angle of
+the boresight (the baffle's exclusion angle). :func:`is_flooded` tells such a frame from its
+pixels, as flight software would.
 
 Determinism: frame ``k``'s noise is seeded from ``(seed, k)`` only.
 
 Example (a camera staring from a fixed attitude; no Basilisk simulation needed to render):
     >>> import numpy as np
-    >>> from starid import Camera, Catalog
+    >>> from adfusion.starid import Camera, Catalog
     >>> cam = StarCameraModule(Camera.pinhole(256, 256, 10.0), Catalog.hipparcos(6.0))
     >>> fr = cam.render(0, [1.0, 0.0, 0.0, 0.0], np.zeros(3), np.array([7e6, 0, 0]))
     >>> fr.image.shape, fr.blinded
@@ -31,12 +33,12 @@ from Basilisk.architecture import messaging, sysModel
 from numpy.typing import ArrayLike, NDArray
 
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
-from sensors.render import SensorModel, render_frame
-from starid import rotations as rot
-from starid.camera import Camera
-from starid.catalog import Catalog
+from adfusion.sensors.render import SensorModel, render_frame
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
 
-__all__ = ["CameraFrame", "StarCameraModule", "earth_limb_angle_rad"]
+__all__ = ["CameraFrame", "StarCameraModule", "earth_limb_angle_rad", "is_flooded"]
 
 R_EARTH_M = 6378137.0
 
@@ -53,6 +55,18 @@ def earth_limb_angle_rad(boresight_icrs: ArrayLike, r_bn_n_m: ArrayLike) -> floa
     b = np.asarray(boresight_icrs, dtype=np.float64)
     to_centre = float(np.arccos(np.clip(-(b @ r) / (np.linalg.norm(b) * d), -1.0, 1.0)))
     return to_centre - float(np.arcsin(min(R_EARTH_M / d, 1.0)))
+
+
+def is_flooded(image: NDArray, saturated_fraction: float = 0.5) -> bool:
+    """True when most of the frame sits at the detector's ceiling (the dtype's maximum):
+    stray light, not stars. Checked on every 8th pixel of every 8th row (cheap).
+
+    >>> is_flooded(np.full((64, 64), 65535, np.uint16)), is_flooded(np.zeros((64, 64), np.uint16))
+    (True, False)
+    """
+    sub = np.asarray(image)[::8, ::8]
+    top = np.iinfo(sub.dtype).max if np.issubdtype(sub.dtype, np.integer) else np.max(sub)
+    return bool(np.mean(sub >= top) >= saturated_fraction)
 
 
 @dataclass
@@ -84,6 +98,7 @@ class StarCameraModule(sysModel.SysModel):
         seed: noise seed of the frames.
         earth_keepout_deg: flood frames with the Earth's limb this close to the boresight
             (None: never).
+        blind_windows: time intervals ``(t0_s, t1_s)`` in which frames are flooded.
 
     Input message: ``scStateInMsg`` (``SCStatesMsg``). Output: :attr:`latest` (a
     :class:`CameraFrame`, or None before the first frame), :attr:`frames` (a count).
@@ -91,7 +106,8 @@ class StarCameraModule(sysModel.SysModel):
 
     def __init__(self, camera: Camera, catalog: Catalog, q_body_cam: ArrayLike = rot.IDENTITY,
                  *, sensor: SensorModel | None = None, exposure_s: float = 0.1, seed: int = 0,
-                 earth_keepout_deg: float | None = None) -> None:
+                 earth_keepout_deg: float | None = None,
+                 blind_windows: tuple[tuple[float, float], ...] = ()) -> None:
         super().__init__()
         self.ModelTag = "starCamera"
         self.scStateInMsg = messaging.SCStatesMsgReader()
@@ -105,16 +121,17 @@ class StarCameraModule(sysModel.SysModel):
         self.seed = int(seed)
         self.earth_keepout_rad = None if earth_keepout_deg is None else \
             float(np.radians(earth_keepout_deg))
+        self.blind_windows = tuple((float(a), float(b)) for a, b in blind_windows)
         self._flooded = SensorModel(**{**vars(self.sensor), "background_e":
                                        2.0 * self.sensor.full_well_adu *
                                        self.sensor.gain_e_per_adu})
         self.latest: CameraFrame | None = None
         self.frames = 0
 
-    def Reset(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803 (Basilisk's names)
+    def Reset(self, CurrentSimNanos: int) -> None:
         self.latest, self.frames = None, 0
 
-    def UpdateState(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803
+    def UpdateState(self, CurrentSimNanos: int) -> None:
         st = self.scStateInMsg()
         self.latest = self.render(self.frames, q_body_icrs_from_sigma_bn(st.sigma_BN),
                                   np.asarray(st.omega_BN_B), np.asarray(st.r_BN_N),
@@ -126,8 +143,10 @@ class StarCameraModule(sysModel.SysModel):
         """Frame ``index`` at the given true state (the module's step, callable alone)."""
         q_cam = rot.canonical(rot.multiply(self.q_cam_body, q_body_icrs))
         boresight = rot.to_matrix(q_cam)[2]
-        blinded = (self.earth_keepout_rad is not None
-                   and earth_limb_angle_rad(boresight, r_bn_n_m) < self.earth_keepout_rad)
+        t_s = t_ns * 1e-9
+        blinded = (any(a <= t_s < b for a, b in self.blind_windows)
+                   or (self.earth_keepout_rad is not None
+                       and earth_limb_angle_rad(boresight, r_bn_n_m) < self.earth_keepout_rad))
         ss = np.random.SeedSequence(entropy=self.seed, spawn_key=(2, int(index)))
         fr = render_frame(self.camera, q_cam, self.catalog.vectors, self.catalog.mag,
                           self._flooded if blinded else self.sensor,

@@ -8,7 +8,7 @@ stars and the dynamics share one inertial frame).
 
 Example:
     >>> import numpy as np
-    >>> from starid import rotations as rot
+    >>> from adfusion.starid import rotations as rot
     >>> sigma = np.array([0.1, -0.2, 0.3])
     >>> q = q_body_icrs_from_sigma_bn(sigma)
     >>> bool(np.allclose(sigma_bn_from_q_body_icrs(q), sigma))
@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from starid import rotations as rot
+from adfusion.starid import rotations as rot
 
 __all__ = ["dcm_bn_from_sigma_bn", "q_body_icrs_from_sigma_bn", "sigma_bn_from_q_body_icrs"]
 

@@ -7,25 +7,29 @@ Basilisk's quaternion star tracker) → :class:`adfusion.Estimator` → ``NavAtt
   frame (``dcm_PB``) — a gyro step of the estimator at the message's write time;
 * a camera frame from a :class:`adfusion.basilisk.camera.StarCameraModule` (``camera``):
   detection → identification (tracking from the filter's cone, lost-in-space fallback,
-  both inside :meth:`adfusion.Estimator.step`) → MEKF update. With ``earth_keepout_deg`` and
-  ``navTransInMsg`` (the position, ``NavTransMsg``), frames the *estimated* boresight says
-  are blinded by the Earth are not used (recorded as rejected, not counted as misses, so the
-  first frame after an outage is tracked from the gyro-propagated cone);
+  both inside :meth:`adfusion.Estimator.step`) → MEKF update. A flooded frame (stray light,
+  :func:`~adfusion.basilisk.camera.is_flooded`) is not used, and neither is one that the
+  *estimated* boresight puts inside ``earth_keepout_deg`` of the Earth's limb (with
+  ``navTransInMsg``, the position): both are recorded as rejected but not counted as
+  misses, so the first frame after an outage is tracked from the gyro-propagated cone;
 * or ``stInMsg`` (``STSensorMsg``, Basilisk's ``starTracker``): ``qInrtl2Case`` through the
   case mounting ``dcm_CB`` as an attitude update of ``st_sigma_rad`` per axis;
 * ``tamInMsg`` (``TAMSensorMsg``) with ``magFieldInMsg`` (``MagneticFieldMsg``, the model
   field in N): a direction update (the sensor frame through ``dcm_SB``).
 
-It then propagates to the call time and writes ``navAttOutMsg`` (``NavAttMsg``: ``sigma_BN``,
-``omega_BN_B`` = gyro − estimated bias) and ``filtDataOutMsg`` (``InertialFilterMsg``:
+Measurements are applied in time order. It then writes ``navAttOutMsg`` (``NavAttMsg``:
+``sigma_BN``, ``omega_BN_B`` = gyro − estimated bias) and ``filtDataOutMsg`` (``InertialFilterMsg``:
 ``state`` = [sigma_BN, bias (rad/s)], ``covar`` = the filter's 6×6 covariance of [attitude
-error (rad, body axes), bias (rad/s)], ``numObs`` = measurements used this call).
+error (rad, body axes), bias (rad/s)], ``numObs`` = measurements used this call), time-tagged
+with the estimate's time (the latest measurement's; like Basilisk's own filters, the module
+does not extrapolate between measurements). A call with nothing new re-writes the last
+payloads.
 
 Every step's :class:`adfusion.estimator.StepRecord` is kept in ``records`` (with the frame's
 truth) when ``keep_records``; ``cost_s`` keeps each call's wall time by kind for benchmarks
 (never written to logs: a log must be identical for a seed).
 
-Example (a gyro-only module in a bare Basilisk simulation, written IMU messages):
+Example (a gyro-only module in a bare Basilisk simulation, IMU messages written by hand):
     >>> from Basilisk.architecture import messaging
     >>> from Basilisk.utilities import SimulationBaseClass, macros
     >>> sim = SimulationBaseClass.SimBaseClass()
@@ -33,30 +37,34 @@ Example (a gyro-only module in a bare Basilisk simulation, written IMU messages)
     >>> nav = AdfusionNav(q_body_icrs0=[1.0, 0.0, 0.0, 0.0])
     >>> imu = messaging.IMUSensorMsgPayload()
     >>> imu.AngVelPlatform = [0.0, 0.0, 0.01]
-    >>> imu_msg = messaging.IMUSensorMsg().write(imu)
+    >>> imu_msg = messaging.IMUSensorMsg()
     >>> nav.imuInMsg.subscribeTo(imu_msg)
     >>> sim.AddModelToTask("t", nav)
     >>> sim.InitializeSimulation()
-    >>> sim.ConfigureStopTime(macros.sec2nano(1.0))
-    >>> sim.ExecuteSimulation()
+    >>> for k in range(11):  # 0.01 rad/s about z for 1 s
+    ...     _ = imu_msg.write(imu, int(macros.sec2nano(0.1 * k)))
+    ...     sim.ConfigureStopTime(macros.sec2nano(0.1 * k))
+    ...     sim.ExecuteSimulation()
     >>> out = nav.navAttOutMsg.read()
-    >>> round(float(np.degrees(4 * np.arctan(np.linalg.norm(out.sigma_BN)))), 3)
-    0.573
+    >>> angle_deg = np.degrees(4 * np.arctan(np.linalg.norm(out.sigma_BN)))
+    >>> round(out.timeTag, 6), round(float(angle_deg), 3)
+    (1.0, 0.573)
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from Basilisk.architecture import messaging, sysModel
 from numpy.typing import ArrayLike
 
-from adfusion.basilisk.camera import earth_limb_angle_rad
+from adfusion.basilisk.camera import earth_limb_angle_rad, is_flooded
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn, sigma_bn_from_q_body_icrs
-from adfusion.estimator import Estimator, StepRecord
-from starid import rotations as rot
+from adfusion.estimation.estimator import Estimator, StepRecord
+from adfusion.starid import rotations as rot
 
 __all__ = ["AdfusionNav"]
 
@@ -74,13 +82,18 @@ class AdfusionNav(sysModel.SysModel):
         earth_keepout_deg: skip frames whose estimated boresight has the Earth's limb this
             close (needs ``navTransInMsg``).
         keep_records: keep every step's record in :attr:`records`.
+        rate_lowpass_hz: a first-order low-pass (this corner) on the output rate
+            ``omega_BN_B`` (gyro − bias): the gyro's white noise otherwise reaches the
+            controller's rate term unfiltered (None: no filter). The attitude is not
+            filtered.
         estimator_kw: passed to :class:`adfusion.Estimator` (gyro noise, gates, ...).
     """
 
     def __init__(self, solver=None, camera=None, q_body_cam: ArrayLike = rot.IDENTITY, *,
                  q_body_icrs0: ArrayLike | None = None, sigma_attitude0_rad: float = 0.02,
                  st_sigma_rad: float = 1e-4, earth_keepout_deg: float | None = None,
-                 keep_records: bool = True, **estimator_kw: Any) -> None:
+                 keep_records: bool = True, rate_lowpass_hz: float | None = None,
+                 **estimator_kw: Any) -> None:
         super().__init__()
         self.ModelTag = "adfusionNav"
         self.imuInMsg = messaging.IMUSensorMsgReader()
@@ -101,6 +114,7 @@ class AdfusionNav(sysModel.SysModel):
         self.earth_keepout_rad = None if earth_keepout_deg is None else \
             float(np.radians(earth_keepout_deg))
         self.keep_records = bool(keep_records)
+        self.rate_lowpass_hz = None if rate_lowpass_hz is None else float(rate_lowpass_hz)
         self._est_kw = dict(estimator_kw)
         self._q0 = None if q_body_icrs0 is None else rot.normalize(q_body_icrs0)
         self._sigma0 = float(sigma_attitude0_rad)
@@ -108,40 +122,37 @@ class AdfusionNav(sysModel.SysModel):
 
     # --- Basilisk interface ------------------------------------------------------------
 
-    def Reset(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803 (Basilisk's names)
+    def Reset(self, CurrentSimNanos: int) -> None:
         self.est = Estimator(self.solver, self.q_body_cam, q_body_icrs0=self._q0,
                              sigma_attitude0_rad=self._sigma0, **self._est_kw)
         self._seen = {"imu": -1, "st": -1, "tam": -1, "frame": -1}
         self._gyro_body = None
         self.records: list[dict[str, Any]] = []
-        self.cost_s: dict[str, list[float]] = {"gyro": [], "frame": [], "st": [], "idle": []}
+        self.cost_s: dict[str, list[float]] = {"gyro": [], "frame": [], "st": [], "mag": [],
+                                               "idle": []}
+        self._att = self._filt = None
+        self._rate_lp: np.ndarray | None = None
+        self._t_rate: float | None = None
 
-    def UpdateState(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803
+    def UpdateState(self, CurrentSimNanos: int) -> None:
         t0 = time.perf_counter()
-        kind = "idle"
-        t_now = CurrentSimNanos * 1e-9
-        n_obs = 0
+        events = []  # (time ns, order at equal times, kind, data)
         if self.imuInMsg.isLinked() and self.imuInMsg.isWritten():
             tw = self.imuInMsg.timeWritten()
             if tw != self._seen["imu"]:
                 self._seen["imu"] = tw
                 w_p = np.asarray(self.imuInMsg().AngVelPlatform, dtype=np.float64)
-                self._gyro_body = self.dcm_PB.T @ w_p
-                self._keep(self.est.step(tw * 1e-9, gyro=self._gyro_body))
-                kind = "gyro"
+                events.append((tw, 0, "gyro", self.dcm_PB.T @ w_p))
         if self.camera is not None and self.camera.latest is not None:
             fr = self.camera.latest
             if fr.index != self._seen["frame"]:
                 self._seen["frame"] = fr.index
-                self._frame_step(fr)
-                kind = "frame"
-                n_obs += self.records[-1]["rec"].fix_accepted if self.keep_records else 0
+                events.append((fr.t_ns, 1, "frame", fr))
         if self.stInMsg.isLinked() and self.stInMsg.isWritten():
             tw = self.stInMsg.timeWritten()
             if tw != self._seen["st"]:
                 self._seen["st"] = tw
-                n_obs += self._st_step(tw * 1e-9, np.asarray(self.stInMsg().qInrtl2Case))
-                kind = "st" if kind == "idle" else kind
+                events.append((tw, 2, "st", np.asarray(self.stInMsg().qInrtl2Case)))
         if (self.tamInMsg.isLinked() and self.tamInMsg.isWritten()
                 and self.magFieldInMsg.isLinked() and self.magFieldInMsg.isWritten()):
             tw = self.tamInMsg.timeWritten()
@@ -149,18 +160,41 @@ class AdfusionNav(sysModel.SysModel):
                 self._seen["tam"] = tw
                 b_body = self.dcm_SB.T @ np.asarray(self.tamInMsg().tam_S, dtype=np.float64)
                 b_n = np.asarray(self.magFieldInMsg().magField_N, dtype=np.float64)
-                rec = self.est.step(tw * 1e-9, mag=(b_body, b_n))
-                n_obs += "mag" in rec.sensors and "mag" not in dict(rec.rejected)
+                events.append((tw, 3, "mag", (b_body, b_n)))
+        n_obs = 0
+        for tw, _, kind, data in sorted(events, key=lambda e: e[:2]):
+            t = tw * 1e-9
+            if kind == "gyro":
+                self._gyro_body = data
+                self._keep(self.est.step(t, gyro=data))
+                self._filter_rate(t)
+            elif kind == "frame":
+                n_obs += self._frame_step(data)
+            elif kind == "st":
+                n_obs += self._st_step(t, data)
+            else:
+                rec = self.est.step(t, mag=data)
+                n_obs += "mag" in rec.sensors and not any(k == "mag" for k, _ in rec.rejected)
                 self._keep(rec)
-        if self.est.t is None or t_now > self.est.t:
-            self.est.step(t_now)
-        self._write(CurrentSimNanos, n_obs)
+        if events or self._att is None:
+            self._write_new(n_obs)
+        self.navAttOutMsg.write(self._att, CurrentSimNanos, self.moduleID)
+        self.filtDataOutMsg.write(self._filt, CurrentSimNanos, self.moduleID)
+        kinds = {e[2] for e in events}
+        kind = "frame" if "frame" in kinds else "st" if "st" in kinds else \
+            "gyro" if kinds == {"gyro"} else "mag" if "mag" in kinds else "idle"
         self.cost_s[kind].append(time.perf_counter() - t0)
 
     # --- pieces ------------------------------------------------------------------------
 
-    def _frame_step(self, fr) -> None:
+    def _frame_step(self, fr) -> int:
         t = fr.t_ns * 1e-9
+        if is_flooded(fr.image):
+            rec = self.est.step(t)
+            rec.rejected.append(("camera", "frame flooded (stray light: most pixels "
+                                           "saturated): blinded, not used"))
+            self._keep(rec, fr)
+            return 0
         if self.earth_keepout_rad is not None and self.est.initialized \
                 and self.navTransInMsg.isLinked():
             q = rot.multiply(rot.inverse(self.q_body_cam), self.est.filter.q_body_icrs)
@@ -171,8 +205,10 @@ class AdfusionNav(sysModel.SysModel):
                                                "the boresight, inside the keep-out: frame "
                                                "not used"))
                 self._keep(rec, fr)
-                return
-        self._keep(self.est.step(t, frame=fr.image), fr)
+                return 0
+        rec = self.est.step(t, frame=fr.image)
+        self._keep(rec, fr)
+        return int(rec.fix_accepted)
 
     def _st_step(self, t: float, q_inrtl2case: np.ndarray) -> int:
         # Basilisk's β_CN is the conjugate of q_case_icrs (see frames.py)
@@ -200,26 +236,42 @@ class AdfusionNav(sysModel.SysModel):
 
     def _keep(self, rec: StepRecord, frame=None) -> None:
         if self.keep_records:
-            self.records.append({"rec": rec, "frame": frame,
+            # the frame's truth without its image (a 10-minute run's images would be GBs)
+            light = None if frame is None else replace(frame, image=None)
+            self.records.append({"rec": rec, "frame": light,
                                  "P": None if self.est.filter is None
                                  else np.array(self.est.filter.P)})
 
-    def _write(self, t_ns: int, n_obs: int) -> None:
+    def _filter_rate(self, t: float) -> None:
+        """The output rate at a gyro sample: gyro − bias, low-passed if asked."""
+        f = self.est.filter
+        if f is None:
+            return
+        w = self._gyro_body - np.asarray(f.bias_rad_s, dtype=np.float64)
+        if self.rate_lowpass_hz is None or self._rate_lp is None or self._t_rate is None:
+            self._rate_lp = w
+        else:
+            a = 1.0 - np.exp(-2.0 * np.pi * self.rate_lowpass_hz * max(t - self._t_rate, 0.0))
+            self._rate_lp = self._rate_lp + a * (w - self._rate_lp)
+        self._t_rate = t
+
+    def _write_new(self, n_obs: int) -> None:
+        """New output payloads from the filter (the estimate's own time as ``timeTag``: the
+        module does not extrapolate between measurements, as Basilisk's filters)."""
         att = messaging.NavAttMsgPayload()
         filt = messaging.InertialFilterMsgPayload()
-        att.timeTag = filt.timeTag = t_ns * 1e-9
         f = self.est.filter
         if f is not None:
+            att.timeTag = filt.timeTag = float(self.est.t)
             sigma = sigma_bn_from_q_body_icrs(f.q_body_icrs)
             bias = np.asarray(f.bias_rad_s, dtype=np.float64)
             att.sigma_BN = sigma.tolist()
-            if self._gyro_body is not None:
-                att.omega_BN_B = (self._gyro_body - bias).tolist()
+            if self._rate_lp is not None:
+                att.omega_BN_B = self._rate_lp.tolist()
             filt.state = [*sigma.tolist(), *bias.tolist()]
             filt.covar = np.asarray(f.P, dtype=np.float64).reshape(-1).tolist()
         filt.numObs = int(n_obs)
-        self.navAttOutMsg.write(att, t_ns, self.moduleID)
-        self.filtDataOutMsg.write(filt, t_ns, self.moduleID)
+        self._att, self._filt = att, filt
 
     @staticmethod
     def q_body_icrs(payload) -> np.ndarray:

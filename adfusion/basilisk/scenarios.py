@@ -14,17 +14,20 @@ frames (+ gyro + magnetometer), :class:`AdfusionNav` on the star tracker's quate
 which one ``attTrackingError`` reads: ``"adfusion"`` (the camera one), ``"ukf"`` or
 ``"truth"`` (``simpleNav``).
 
-Scenarios (:data:`SCENARIOS`): ``leo`` — inertial pointing at the orbit normal; ``slew`` —
-a 20° slew to a second target at 200 s; ``outage`` — the boresight 7° off the orbit normal
-towards the Earth, so that the Earth's limb passes within the camera's 15° keep-out for
-60 s around t = 270 s (frames flooded; the estimator bridges on the gyro); ``misaligned`` —
+Scenarios (:data:`SCENARIOS`): ``leo`` — inertial pointing at the orbit normal (the Earth's
+limb stays 22° from the boresight, outside the 15° keep-out); ``slew`` — a 20° slew to a
+second target at 200 s; ``outage`` — the Sun or the Earth in view from 240 s to 300 s:
+camera frames flooded and star-tracker samples lost (a prescribed window: in an inertially
+pointed LEO orbit the Earth's limb sweeps so slowly past its closest approach that a
+geometric 60 s grazing pass needs a 0.004° deep one); the estimators bridge on the gyro;
+``misaligned`` —
 a gyro bias of (0.01, −0.008, 0.006) °/s and the camera mounted 0.05° off its nominal
 orientation (the flight software does not know it).
 
 Example:
     >>> run = run_loop(AcsConfig(duration_s=2.0), loop="adfusion", seed=1)
     >>> len(run.camera_steps), run.camera_steps[0]["mode"]
-    (8, 'lost-in-space')
+    (9, 'lost-in-space')
 """
 
 from __future__ import annotations
@@ -61,14 +64,16 @@ from Basilisk.utilities import (
     simSetPlanetEnvironment,
 )
 
-from adfusion.basilisk.camera import R_EARTH_M, StarCameraModule
+from adfusion.basilisk.camera import R_EARTH_M, StarCameraModule, earth_limb_angle_rad
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn, sigma_bn_from_q_body_icrs
+from adfusion.basilisk.log import McapLogModule
 from adfusion.basilisk.nav import AdfusionNav
-from sensors.render import SensorModel
-from starid import rotations as rot
-from starid.camera import Camera
-from starid.catalog import Catalog
-from starid.solver import Solver
+from adfusion.logs import LogWriter
+from adfusion.sensors.render import SensorModel
+from adfusion.starid import rotations as rot
+from adfusion.starid.camera import Camera
+from adfusion.starid.catalog import Catalog
+from adfusion.starid.solver import Solver
 
 __all__ = ["LOOPS", "SCENARIOS", "AcsConfig", "LoopRun", "run_loop", "scenario"]
 
@@ -89,14 +94,15 @@ class AcsConfig:
     camera_hz: float = 4.0
     mag_hz: float = 2.0
     control_hz: float = 10.0
-    # gyro (imuSensor): white rate noise of this ARW, a constant bias
-    arw_rad_sqrt_s: float = 5e-5
+    # gyro (imuSensor): white rate noise of this ARW (5e-6 rad/√s = 0.017°/√h, a fibre-optic
+    # gyro of a precision-pointing bus), a constant bias
+    arw_rad_sqrt_s: float = 5e-6
     gyro_bias_rad_s: tuple[float, float, float] = (3e-5, -2e-5, 1e-5)
     # star tracker (starTracker): per-axis white noise
     st_sigma_rad: float = 1e-4
     mag_noise_t: float = 50e-9
     # camera
-    width_px: int = 1024
+    width_px: int = 512
     fov_deg: float = 20.0
     exposure_s: float = 0.1
     render_mag_limit: float = 6.0
@@ -104,12 +110,15 @@ class AcsConfig:
     catalog_epoch: float = 2025.4
     earth_keepout_deg: float = 15.0
     camera_misalignment_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # stray light: camera and star tracker blinded in these intervals (s)
+    blind_windows: tuple[tuple[float, float], ...] = ()
     # pointing: boresight tilt from the orbit normal towards nadir at t_tilt_s
     tilt_deg: float = 0.0
     t_tilt_s: float = 270.0
     slew_at_s: float | None = None
     slew_deg: float = 20.0
-    initial_error_deg: float = 0.5
+    initial_error_deg: float = 0.1
+    rate_lowpass_hz: float | None = None  # on adfusion's output rate (AdfusionNav)
     # spacecraft and control
     inertia_kg_m2: tuple[float, float, float] = (900.0, 800.0, 600.0)
     mass_kg: float = 750.0
@@ -135,7 +144,7 @@ def scenario(name: str, **overrides: Any) -> AcsConfig:
 SCENARIOS: dict[str, AcsConfig] = {
     "leo": AcsConfig(name="leo"),
     "slew": AcsConfig(name="slew", slew_at_s=200.0),
-    "outage": AcsConfig(name="outage", tilt_deg=7.0, t_tilt_s=270.0),
+    "outage": AcsConfig(name="outage", blind_windows=((240.0, 300.0),)),
     "misaligned": AcsConfig(name="misaligned",
                             gyro_bias_rad_s=tuple(np.radians([0.01, -0.008, 0.006])),
                             camera_misalignment_deg=(0.05, 0.0, 0.0)),
@@ -176,23 +185,57 @@ class _ImuToAccData(sysModel.SysModel):
         self.accOutMsg = messaging.AccDataMsg()
         self._pkts: list[tuple[int, list[float]]] = []
 
-    def Reset(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803
+    def Reset(self, CurrentSimNanos: int) -> None:
         self._pkts = []
 
-    def UpdateState(self, CurrentSimNanos: int) -> None:  # noqa: N802, N803
+    def UpdateState(self, CurrentSimNanos: int) -> None:
         if self.imuInMsg.isWritten():
             tw = self.imuInMsg.timeWritten()
             if not self._pkts or self._pkts[-1][0] != tw:
-                self._pkts = [*self._pkts[-49:], (tw, list(self.imuInMsg().AngVelPlatform))]
-        out = messaging.AccDataMsgPayload()
-        pkts = []
-        for tw, w in self._pkts:
-            p = messaging.AccPktDataMsgPayload()
-            p.measTime, p.gyro_B = tw, w
-            pkts.append(p)
-        pkts += [messaging.AccPktDataMsgPayload() for _ in range(120 - len(pkts))]
-        out.accPkts = pkts
-        self.accOutMsg.write(out, CurrentSimNanos, self.moduleID)
+                self._pkts = [*self._pkts[-19:], (tw, list(self.imuInMsg().AngVelPlatform))]
+                out = messaging.AccDataMsgPayload()
+                pkts = []
+                for t_pkt, w in self._pkts:
+                    p = messaging.AccPktDataMsgPayload()
+                    p.measTime, p.gyro_B = t_pkt, w
+                    pkts.append(p)
+                pkts += [messaging.AccPktDataMsgPayload() for _ in range(120 - len(pkts))]
+                out.accPkts = pkts
+                self._out = out
+        if getattr(self, "_out", None) is not None:
+            self.accOutMsg.write(self._out, CurrentSimNanos, self.moduleID)
+
+
+class _BlindedStarTracker(sysModel.SysModel):
+    """Passes ``STSensorMsg`` on unless the tracker is blinded: inside ``blind_windows`` or
+    with the Earth's limb within ``keepout_rad`` of its true boresight (it looks where the
+    camera looks; Basilisk's ``starTracker`` models neither). Blinded samples are not
+    written."""
+
+    def __init__(self, keepout_rad: float, q_body_case: np.ndarray,
+                 blind_windows: tuple[tuple[float, float], ...] = ()) -> None:
+        super().__init__()
+        self.ModelTag = "starTrackerBlinding"
+        self.stInMsg = messaging.STSensorMsgReader()
+        self.scStateInMsg = messaging.SCStatesMsgReader()
+        self.stOutMsg = messaging.STSensorMsg()
+        self.keepout_rad = float(keepout_rad)
+        self.R_body_case = rot.to_matrix(q_body_case)
+        self.blind_windows = tuple(blind_windows)
+        self.blinded = 0
+
+    def UpdateState(self, CurrentSimNanos: int) -> None:
+        t_s = CurrentSimNanos * 1e-9
+        if any(a <= t_s < b for a, b in self.blind_windows):
+            self.blinded += 1
+            return
+        st = self.scStateInMsg()
+        r_body_icrs = rot.to_matrix(q_body_icrs_from_sigma_bn(st.sigma_BN))
+        boresight = r_body_icrs.T @ self.R_body_case[:, 2]
+        if earth_limb_angle_rad(boresight, st.r_BN_N) < self.keepout_rad:
+            self.blinded += 1
+            return
+        self.stOutMsg.write(self.stInMsg(), CurrentSimNanos, self.moduleID)
 
 
 def _orbit(cfg: AcsConfig) -> tuple[np.ndarray, np.ndarray, float]:
@@ -228,6 +271,25 @@ def _slew_target(cfg: AcsConfig, q0: np.ndarray) -> np.ndarray:
     return rot.canonical(rot.multiply(rot.exp_map(np.radians(cfg.slew_deg) * axis), q0))
 
 
+def _log_config(cfg: AcsConfig, seed: int, loop: str, solver: Solver,
+                q_body_cam_fsw: np.ndarray, est_kw: dict[str, Any]) -> dict[str, Any]:
+    """Metadata ``config``: the run, and what ``adfusion replay`` reads from it."""
+    return {
+        "scenario": cfg.name, "seed": int(seed), "loop": loop, "simulator": "basilisk",
+        "acs": cfg.as_dict(), "q_body_cam": q_body_cam_fsw.tolist(),
+        "mag_limit": cfg.solver_mag_limit,
+        "catalog": {"source": "hipparcos", "epoch": cfg.catalog_epoch,
+                    "n_stars": len(solver.catalog)},
+        "camera": {**solver.camera.to_dict(), "fps": cfg.camera_hz,
+                   "exposure_s": cfg.exposure_s, "centroid_sigma_px": 0.5},
+        "gyro": {"rate_hz": cfg.gyro_hz, "arw_rad_sqrt_s": est_kw["arw_rad_sqrt_s"],
+                 "rrw_rad_s_sqrt_s": est_kw["rrw_rad_s_sqrt_s"],
+                 "bias_rad_s": list(cfg.gyro_bias_rad_s)},
+        "mag": {"rate_hz": cfg.mag_hz, "noise_nT": cfg.mag_noise_t * 1e9,
+                "model": "Basilisk magneticFieldCenteredDipole (IGRF 2020 dipole)"},
+    }
+
+
 def _sec(x: float) -> int:
     return int(macros.sec2nano(x))
 
@@ -235,12 +297,15 @@ def _sec(x: float) -> int:
 def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
              camera_in_sim: bool | None = None, keep_frames: bool = False,
              catalogs: tuple[Catalog, Catalog] | None = None,
-             solver: Solver | None = None) -> LoopRun:
+             solver: Solver | None = None, log: LogWriter | None = None,
+             images: str = "preview", preview_every: int = 40) -> LoopRun:
     """Build and run one closed loop; everything seeded from ``seed``.
 
     ``camera_in_sim``: render frames and run the camera estimator (default: only when the
     loop is closed on it). ``catalogs``/``solver``: reuse across runs (the sky and the
-    solver's catalogue; built from the configuration otherwise).
+    solver's catalogue; built from the configuration otherwise). ``log``: an open
+    :class:`adfusion.logs.LogWriter` for the run's MCAP log (camera loops only; see
+    :mod:`adfusion.basilisk.log` for ``images`` and ``preview_every``).
     """
     if loop not in LOOPS:
         raise ValueError(f"loop must be one of {LOOPS}, got {loop!r}")
@@ -322,6 +387,12 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     st.setWalkBounds([1.0, 1.0, 1.0])
     st.dcm_CB = np.eye(3).tolist()
     sim.AddModelToTask("cam", st, 100)
+    blind = _BlindedStarTracker(np.radians(cfg.earth_keepout_deg), rot.IDENTITY,
+                                cfg.blind_windows)
+    blind.stInMsg.subscribeTo(st.sensorOutMsg)
+    blind.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    sim.AddModelToTask("cam", blind, 95)
+    st_msg = blind.stOutMsg
 
     mag_env = magneticFieldCenteredDipole.MagneticFieldCenteredDipole()
     mag_env.ModelTag = "magField"
@@ -353,7 +424,8 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
         cam_mod = StarCameraModule(camera, catalogs[0], q_body_cam_true,
                                    sensor=SensorModel(psf_sigma_px=1.2, noise="gaussian"),
                                    exposure_s=cfg.exposure_s, seed=s_cam,
-                                   earth_keepout_deg=cfg.earth_keepout_deg)
+                                   earth_keepout_deg=cfg.earth_keepout_deg,
+                                   blind_windows=cfg.blind_windows)
         cam_mod.scStateInMsg.subscribeTo(sc.scStateOutMsg)
         sim.AddModelToTask("cam", cam_mod, 90)
     else:
@@ -364,12 +436,17 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     veh.ISCPntB_B = inertia.reshape(-1).tolist()
     veh_msg = messaging.VehicleConfigMsg().write(veh)
     bias_sigma0 = max(float(np.max(np.abs(cfg.gyro_bias_rad_s))) * 2.0, 1e-4)
+    # the Estimator's default fix_covariance_scale (4) stays: inertial pointing shows the
+    # camera the same stars frame after frame, so the fixes share their errors (blended
+    # neighbours pull centroids by up to ~1 px), and scale 1 leaves the filter overconfident
+    # (mean NEES 4.2 for 3 dof on leo, seed 1)
     est_kw = {"arw_rad_sqrt_s": cfg.arw_rad_sqrt_s, "rrw_rad_s_sqrt_s": 1e-8,
               "sigma_bias0_rad_s": bias_sigma0, "exposure_s": cfg.exposure_s}
     navs: dict[str, AdfusionNav] = {}
     if use_camera:
         nav_cam = AdfusionNav(solver, cam_mod, q_body_cam_fsw,
-                              earth_keepout_deg=cfg.earth_keepout_deg, **est_kw)
+                              earth_keepout_deg=cfg.earth_keepout_deg,
+                              rate_lowpass_hz=cfg.rate_lowpass_hz, **est_kw)
         nav_cam.ModelTag = "adfusionCamera"
         nav_cam.imuInMsg.subscribeTo(imu.sensorOutMsg)
         nav_cam.tamInMsg.subscribeTo(tam.tamDataOutMsg)
@@ -381,14 +458,14 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
                          **{**est_kw, "exposure_s": None})
     nav_st.ModelTag = "adfusionStarTracker"
     nav_st.imuInMsg.subscribeTo(imu.sensorOutMsg)
-    nav_st.stInMsg.subscribeTo(st.sensorOutMsg)
+    nav_st.stInMsg.subscribeTo(st_msg)
     sim.AddModelToTask("nav", nav_st, 90)
     navs["adfusion_st"] = nav_st
 
     stc = stComm.stComm()
     stc.ModelTag = "stComm"
     stc.dcm_BP = np.eye(3).reshape(-1).tolist()
-    stc.stSensorInMsg.subscribeTo(st.sensorOutMsg)
+    stc.stSensorInMsg.subscribeTo(st_msg)
     sim.AddModelToTask("nav", stc, 80)
     acc = _ImuToAccData()
     acc.imuInMsg.subscribeTo(imu.sensorOutMsg)
@@ -441,6 +518,19 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     alloc.rwParamsInMsg.subscribeTo(rw_params)
     sim.AddModelToTask("ctl", alloc, 70)
     rw_eff.rwMotorCmdInMsg.subscribeTo(alloc.rwMotorTorqueOutMsg)
+
+    if log is not None:
+        if not use_camera:
+            raise ValueError("an MCAP log is written for runs with the camera in the loop")
+        logger = McapLogModule(log, navs["adfusion"], _log_config(cfg, seed, loop, solver,
+                                                                  q_body_cam_fsw, est_kw),
+                               images=images, preview_every=preview_every)
+        logger.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+        logger.imuInMsg.subscribeTo(imu.sensorOutMsg)
+        logger.tamInMsg.subscribeTo(tam.tamDataOutMsg)
+        logger.magFieldInMsg.subscribeTo(mag_env.envOutMsgs[0])
+        logger.ukfInMsg.subscribeTo(ukf.navStateOutMsg)
+        sim.AddModelToTask("nav", logger, 1)
 
     # --- recorders --------------------------------------------------------------------
     rec_truth = sc.scStateOutMsg.recorder()
