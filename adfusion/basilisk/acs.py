@@ -9,7 +9,8 @@ adfusion on the star tracker's quaternions, and ``inertialUKF`` on those same qu
 
 Figures (:class:`AcsReport`):
 
-* pointing error — the angle between the true body and the reference attitude, RMS and
+* pointing error — the angle between the true body and the reference attitude (3 axes), and
+  between the camera's true and reference lines of sight (roll about it left out), RMS and
   95th percentile from ``settle_s`` on (the initial acquisition is the same in all loops);
 * estimation error — the angle between estimate and truth, RMS / p95 over the same window,
   and the mean NEES of the attitude error (3 dof; the 95 % band of a time average is not
@@ -103,11 +104,12 @@ class AcsReport:
         """The comparison as a Markdown table."""
         lines = [f"## adfusion acs {self.scenario} (seed {self.seed}, {self.duration_s:g} s; "
                  f"statistics from t = {self.settle_s:g} s)", "",
-                 "| loop closed on | pointing RMS (″) | p95 (″) | max (″) |",
-                 "|---|---|---|---|"]
+                 "| loop closed on | pointing RMS (″) | p95 (″) | max (″) | "
+                 "line of sight RMS (″) | p95 (″) |", "|---|---|---|---|---|---|"]
         for loop, s in self.pointing.items():
             lines.append(f"| {loop} | {s['rms_arcsec']:.2f} | {s['p95_arcsec']:.2f} | "
-                         f"{s['max_arcsec']:.2f} |")
+                         f"{s['max_arcsec']:.2f} | {s['los_rms_arcsec']:.2f} | "
+                         f"{s['los_p95_arcsec']:.2f} |")
         lines += ["", "| estimator (same messages) | error RMS (″) | p95 (″) | max (″) | "
                       "mean NEES (3 dof) |", "|---|---|---|---|---|"]
         for name, s in self.estimation.items():
@@ -145,6 +147,13 @@ def summarize(runs: dict[str, LoopRun], settle_s: float = 60.0,
             r = runs[loop]
             w = r.t >= settle_s
             rep.pointing[loop] = _stats_deg(rot.angle_between(r.q_true[w], r.q_ref[w]))
+            # the camera's line of sight alone (the roll about it left out)
+            z_body = rot.to_matrix(r.q_body_cam_fsw)[:, 2]
+            los_true = np.einsum("nji,j->ni", rot.to_matrix(r.q_true[w]), z_body)
+            los_ref = np.einsum("nji,j->ni", rot.to_matrix(r.q_ref[w]), z_body)
+            cosang = np.clip(np.einsum("ni,ni->n", los_true, los_ref), -1.0, 1.0)
+            los = _stats_deg(np.arccos(cosang))
+            rep.pointing[loop].update({f"los_{k}": v for k, v in los.items()})
     base = runs.get("adfusion", any_run)
     w = base.t >= settle_s
     for name in ("adfusion", "adfusion_st", "ukf"):

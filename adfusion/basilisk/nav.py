@@ -18,15 +18,17 @@ Basilisk's quaternion star tracker) → :class:`adfusion.Estimator` → ``NavAtt
   field in N): a direction update (the sensor frame through ``dcm_SB``).
 
 Measurements are applied in time order. It then writes ``navAttOutMsg`` (``NavAttMsg``:
-``sigma_BN``, ``omega_BN_B`` = gyro − estimated bias) and ``filtDataOutMsg`` (``InertialFilterMsg``:
-``state`` = [sigma_BN, bias (rad/s)], ``covar`` = the filter's 6×6 covariance of [attitude
-error (rad, body axes), bias (rad/s)], ``numObs`` = measurements used this call), time-tagged
+``sigma_BN``, ``omega_BN_B`` = gyro − estimated bias) and ``filtDataOutMsg``
+(``InertialFilterMsg``: ``state`` = [sigma_BN, bias (rad/s)], ``covar`` = the filter's 6×6
+covariance of [attitude error (rad, body axes), bias (rad/s)], ``numObs`` = measurements used
+this call), time-tagged
 with the estimate's time (the latest measurement's; like Basilisk's own filters, the module
 does not extrapolate between measurements). A call with nothing new re-writes the last
 payloads.
 
-Every step's :class:`adfusion.estimator.StepRecord` is kept in ``records`` (with the frame's
-truth) when ``keep_records``; ``cost_s`` keeps each call's wall time by kind for benchmarks
+Every camera frame's and star-tracker sample's :class:`adfusion.StepRecord` is kept in
+``records`` (with the frame's truth, without its image, and the covariance after the step)
+when ``keep_records``; ``cost_s`` keeps each call's wall time by kind for benchmarks
 (never written to logs: a log must be identical for a seed).
 
 Example (a gyro-only module in a bare Basilisk simulation, IMU messages written by hand):
@@ -62,7 +64,7 @@ from Basilisk.architecture import messaging, sysModel
 from numpy.typing import ArrayLike
 
 from adfusion.basilisk.camera import earth_limb_angle_rad, is_flooded
-from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn, sigma_bn_from_q_body_icrs
+from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.starid import rotations as rot
 
@@ -162,11 +164,13 @@ class AdfusionNav(sysModel.SysModel):
                 b_n = np.asarray(self.magFieldInMsg().magField_N, dtype=np.float64)
                 events.append((tw, 3, "mag", (b_body, b_n)))
         n_obs = 0
-        for tw, _, kind, data in sorted(events, key=lambda e: e[:2]):
+        if len(events) > 1:
+            events.sort(key=lambda e: e[:2])
+        for tw, _, kind, data in events:
             t = tw * 1e-9
             if kind == "gyro":
                 self._gyro_body = data
-                self._keep(self.est.step(t, gyro=data))
+                self.est.step(t, gyro=data)
                 self._filter_rate(t)
             elif kind == "frame":
                 n_obs += self._frame_step(data)
@@ -175,14 +179,17 @@ class AdfusionNav(sysModel.SysModel):
             else:
                 rec = self.est.step(t, mag=data)
                 n_obs += "mag" in rec.sensors and not any(k == "mag" for k, _ in rec.rejected)
-                self._keep(rec)
         if events or self._att is None:
             self._write_new(n_obs)
         self.navAttOutMsg.write(self._att, CurrentSimNanos, self.moduleID)
         self.filtDataOutMsg.write(self._filt, CurrentSimNanos, self.moduleID)
-        kinds = {e[2] for e in events}
-        kind = "frame" if "frame" in kinds else "st" if "st" in kinds else \
-            "gyro" if kinds == {"gyro"} else "mag" if "mag" in kinds else "idle"
+        if not events:
+            kind = "idle"
+        elif len(events) == 1:
+            kind = events[0][2]
+        else:
+            kinds = {e[2] for e in events}
+            kind = "frame" if "frame" in kinds else "st" if "st" in kinds else "mag"
         self.cost_s[kind].append(time.perf_counter() - t0)
 
     # --- pieces ------------------------------------------------------------------------
@@ -258,20 +265,24 @@ class AdfusionNav(sysModel.SysModel):
     def _write_new(self, n_obs: int) -> None:
         """New output payloads from the filter (the estimate's own time as ``timeTag``: the
         module does not extrapolate between measurements, as Basilisk's filters)."""
-        att = messaging.NavAttMsgPayload()
-        filt = messaging.InertialFilterMsgPayload()
+        if self._att is None:
+            self._att = messaging.NavAttMsgPayload()
+            self._filt = messaging.InertialFilterMsgPayload()
+        att, filt = self._att, self._filt
         f = self.est.filter
         if f is not None:
             att.timeTag = filt.timeTag = float(self.est.t)
-            sigma = sigma_bn_from_q_body_icrs(f.q_body_icrs)
-            bias = np.asarray(f.bias_rad_s, dtype=np.float64)
-            att.sigma_BN = sigma.tolist()
+            # sigma_BN of the filter's unit q_body_icrs (frames.sigma_bn_from_q_body_icrs,
+            # inline in floats: this runs at the gyro rate)
+            w, x, y, z = f.q_body_icrs.tolist()
+            k = (-1.0 if w >= 0.0 else 1.0) / (1.0 + abs(w))
+            sigma = [k * x, k * y, k * z]
+            att.sigma_BN = sigma
             if self._rate_lp is not None:
                 att.omega_BN_B = self._rate_lp.tolist()
-            filt.state = [*sigma.tolist(), *bias.tolist()]
+            filt.state = sigma + np.asarray(f.bias_rad_s, dtype=np.float64).tolist()
             filt.covar = np.asarray(f.P, dtype=np.float64).reshape(-1).tolist()
         filt.numObs = int(n_obs)
-        self._att, self._filt = att, filt
 
     @staticmethod
     def q_body_icrs(payload) -> np.ndarray:
