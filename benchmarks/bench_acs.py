@@ -1,8 +1,8 @@
 """Benchmark adfusion in Basilisk's closed loop: figures over seeds, and the cost per step.
 
 For each seed, the scenario (default ``leo``: 10 minutes, camera 4 Hz, gyro 10 Hz) runs with
-the loop closed on adfusion's camera estimator, on Basilisk's truth and on its
-``inertialUKF`` (:func:`adfusion.basilisk.acs.run_acs` without the log). Per seed: pointing
+the loop closed on adfusion's camera estimator, on Basilisk's truth, on its ``inertialUKF``
+and on adfusion fed by Basilisk's star tracker (``adfusion_st``). Per seed: pointing
 RMS per loop (from ``settle_s``), estimation RMS and mean NEES per estimator (adfusion on the
 camera, adfusion and ``inertialUKF`` on the same star-tracker and gyro messages), camera
 identification.
@@ -134,6 +134,7 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
         wall_adf = time.perf_counter() - t0
         runs["truth"] = run_loop(cfg, "truth", seed)
         runs["ukf"] = run_loop(cfg, "ukf", seed)
+        runs["adfusion_st"] = run_loop(cfg, "adfusion_st", seed)
         rep = summarize(runs, settle_s=settle_s)
         base = runs["adfusion"]
         w = base.t >= settle_s
@@ -145,13 +146,17 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
             v[~est["valid"][w]] = np.nan
             ens[k].append(v)
         ratio = rep.pointing["adfusion"]["rms_arcsec"] / rep.pointing["truth"]["rms_arcsec"]
+        ratio_st = (rep.pointing["adfusion_st"]["rms_arcsec"]
+                    / rep.pointing["truth"]["rms_arcsec"])
         per_seed.append({"seed": seed, "pointing": rep.pointing, "estimation": rep.estimation,
                          "camera": rep.camera, "pointing_ratio_adfusion_truth": ratio,
+                         "pointing_ratio_adfusion_st_truth": ratio_st,
                          "wall_s": {"adfusion_loop": wall_adf,
                                     "all_three": time.perf_counter() - t0}})
         print(f"seed {seed}: pointing RMS truth {rep.pointing['truth']['rms_arcsec']:.2f}″, "
               f"ukf {rep.pointing['ukf']['rms_arcsec']:.2f}″, adfusion "
-              f"{rep.pointing['adfusion']['rms_arcsec']:.2f}″ (×{ratio:.2f}); estimation RMS "
+              f"{rep.pointing['adfusion']['rms_arcsec']:.2f}″ (×{ratio:.2f}), adfusion_st "
+              f"{rep.pointing['adfusion_st']['rms_arcsec']:.2f}″ (×{ratio_st:.2f}); estimation RMS "
               + ", ".join(f"{k} {rep.estimation[k]['rms_arcsec']:.2f}″ NEES "
                           f"{rep.estimation[k]['mean_nees']:.2f}" for k in ESTIMATORS)
               + f"; camera {rep.camera['identified_3_stars']}/{rep.camera['frames_3_stars']} "
@@ -168,12 +173,18 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
                        "mean_of_seed_means": float(np.mean(
                            [s["estimation"][k]["mean_nees"] for s in per_seed]))}
     ratios = [s["pointing_ratio_adfusion_truth"] for s in per_seed]
+    ratios_st = [s["pointing_ratio_adfusion_st_truth"] for s in per_seed]
     return {
         "scenario": name, "seeds": m, "duration_s": duration_s, "settle_s": settle_s,
         "nees_band_95": [float(lo), float(hi)], "nees_dof": 3, "ensemble_nees": ensemble,
         "times": int(0 if t_grid is None else len(t_grid)),
         "pointing_ratio_adfusion_truth": {"mean": float(np.mean(ratios)),
                                           "max": float(np.max(ratios))},
+        "pointing_ratio_adfusion_st_truth": {"mean": float(np.mean(ratios_st)),
+                                             "max": float(np.max(ratios_st))},
+        "pointing_rms_arcsec_mean": {k: float(np.mean([s["pointing"][k]["rms_arcsec"]
+                                                       for s in per_seed]))
+                                     for k in per_seed[0]["pointing"]},
         "estimation_rms_arcsec_mean": {k: float(np.mean([s["estimation"][k]["rms_arcsec"]
                                                          for s in per_seed]))
                                        for k in ESTIMATORS},

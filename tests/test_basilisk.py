@@ -105,6 +105,8 @@ def test_acs_command_writes_log_and_report(tmp_path) -> None:
     assert main(["acs", "leo", "-o", str(out), "--duration", "4", "--seed", "2"]) == 0
     assert out.stat().st_size > 0
     report = (tmp_path / "run.report.md").read_text()
-    assert "| truth |" in report and "| ukf |" in report and "| adfusion |" in report
+    for loop in ("truth (simpleNav)", "inertialUKF (star tracker)", "adfusion (star tracker)",
+                 "adfusion (camera)"):
+        assert f"| {loop} |" in report
     assert (tmp_path / "run.png").stat().st_size > 0
     assert main(["acs", "nowhere", "-o", str(out)]) == 2

@@ -2,7 +2,8 @@
 
 :func:`run_acs` runs the scenario with the loop closed on adfusion (camera frames in the
 loop; the MCAP log is written from this run), on Basilisk's truth (``simpleNav`` without
-noise) and on Basilisk's ``inertialUKF``, all from one seed (the same sensor-noise draws).
+noise), on Basilisk's ``inertialUKF`` and on adfusion fed by the same star tracker as the UKF
+(``adfusion_st``), all from one seed (the same sensor-noise draws).
 In each run the other estimators run beside the one in the loop on the same messages, so
 :func:`summarize` compares estimation errors on identical inputs: adfusion on the camera,
 adfusion on the star tracker's quaternions, and ``inertialUKF`` on those same quaternions.
@@ -46,6 +47,8 @@ from adfusion.starid.solver import Solver
 
 __all__ = ["AcsReport", "attitude_errors_rad", "nees", "run_acs", "summarize"]
 
+LOOP_NAMES = {"truth": "truth (simpleNav)", "ukf": "inertialUKF (star tracker)",
+              "adfusion_st": "adfusion (star tracker)", "adfusion": "adfusion (camera)"}
 ESTIMATORS = {"adfusion": "adfusion (camera + gyro + mag)",
               "adfusion_st": "adfusion (star tracker + gyro)",
               "ukf": "inertialUKF (star tracker + gyro)"}
@@ -107,9 +110,9 @@ class AcsReport:
                  "| loop closed on | pointing RMS (″) | p95 (″) | max (″) | "
                  "line of sight RMS (″) | p95 (″) |", "|---|---|---|---|---|---|"]
         for loop, s in self.pointing.items():
-            lines.append(f"| {loop} | {s['rms_arcsec']:.2f} | {s['p95_arcsec']:.2f} | "
-                         f"{s['max_arcsec']:.2f} | {s['los_rms_arcsec']:.2f} | "
-                         f"{s['los_p95_arcsec']:.2f} |")
+            lines.append(f"| {LOOP_NAMES.get(loop, loop)} | {s['rms_arcsec']:.2f} | "
+                         f"{s['p95_arcsec']:.2f} | {s['max_arcsec']:.2f} | "
+                         f"{s['los_rms_arcsec']:.2f} | {s['los_p95_arcsec']:.2f} |")
         lines += ["", "| estimator (same messages) | error RMS (″) | p95 (″) | max (″) | "
                       "mean NEES (3 dof) |", "|---|---|---|---|---|"]
         for name, s in self.estimation.items():
@@ -231,7 +234,7 @@ def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
     solver.warm_up()
     walls["setup"] = time.perf_counter() - t0
     runs: dict[str, LoopRun] = {}
-    for loop in ("adfusion", "truth", "ukf"):
+    for loop in ("adfusion", "truth", "ukf", "adfusion_st"):
         if loop not in loops:
             continue
         t1 = time.perf_counter()

@@ -134,6 +134,7 @@ class AdfusionNav(sysModel.SysModel):
                                                "idle": []}
         self._att = self._filt = None
         self._rate_lp: np.ndarray | None = None
+        self._q_body_case: np.ndarray | None = None
         self._t_rate: float | None = None
 
     def UpdateState(self, CurrentSimNanos: int) -> None:
@@ -220,7 +221,9 @@ class AdfusionNav(sysModel.SysModel):
     def _st_step(self, t: float, q_inrtl2case: np.ndarray) -> int:
         # Basilisk's β_CN is the conjugate of q_case_icrs (see frames.py)
         q_case_icrs = rot.canonical(rot.conjugate(rot.normalize(q_inrtl2case)))
-        q_body_icrs = rot.multiply(rot.from_matrix(self.dcm_CB.T), q_case_icrs)
+        if self._q_body_case is None:  # dcm_CB is set after construction, read it once
+            self._q_body_case = rot.from_matrix(np.asarray(self.dcm_CB, dtype=np.float64).T)
+        q_body_icrs = rot.multiply(self._q_body_case, q_case_icrs)
         cov = self.st_sigma_rad**2 * np.eye(3)
         if not self.est.initialized:
             self._q0 = q_body_icrs

@@ -11,8 +11,8 @@ rendered frames, 0.1 s exposure).
 Three estimators run side by side on the same messages: :class:`AdfusionNav` on the camera
 frames (+ gyro + magnetometer), :class:`AdfusionNav` on the star tracker's quaternions
 (+ gyro), and Basilisk's ``inertialUKF`` on the same star tracker and gyro. ``loop`` chooses
-which one ``attTrackingError`` reads: ``"adfusion"`` (the camera one), ``"ukf"`` or
-``"truth"`` (``simpleNav``).
+which one ``attTrackingError`` reads: ``"adfusion"`` (the camera one), ``"adfusion_st"``
+(adfusion on the star tracker), ``"ukf"`` or ``"truth"`` (``simpleNav``).
 
 Scenarios (:data:`SCENARIOS`): ``leo`` — inertial pointing at the orbit normal (the Earth's
 limb stays 22° from the boresight, outside the 15° keep-out); ``slew`` — a 10° slew to a
@@ -77,7 +77,7 @@ from adfusion.starid.solver import Solver
 
 __all__ = ["LOOPS", "SCENARIOS", "AcsConfig", "LoopRun", "run_loop", "scenario"]
 
-LOOPS = ("truth", "ukf", "adfusion")
+LOOPS = ("truth", "ukf", "adfusion_st", "adfusion")
 MU_EARTH = 3.986004418e14
 
 
@@ -500,7 +500,8 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     sim.AddModelToTask("ctl", guid, 100)
     track = attTrackingError.attTrackingError()
     track.ModelTag = "attTrackingError"
-    nav_msg = {"truth": snav.attOutMsg, "ukf": ukf.navStateOutMsg}.get(loop)
+    nav_msg = {"truth": snav.attOutMsg, "ukf": ukf.navStateOutMsg,
+               "adfusion_st": nav_st.navAttOutMsg}.get(loop)
     track.attNavInMsg.subscribeTo(nav_msg if nav_msg is not None
                                   else navs["adfusion"].navAttOutMsg)
     track.attRefInMsg.subscribeTo(guid.attRefOutMsg)
