@@ -119,6 +119,8 @@ class AcsConfig:
     slew_deg: float = 20.0
     initial_error_deg: float = 0.1
     rate_lowpass_hz: float | None = None  # on adfusion's output rate (AdfusionNav)
+    # inertialUKF process noise, 1-σ per step of [MRP, rate (rad/s)]
+    ukf_process_sigma: tuple[float, float] = (1.25e-6, 1e-6)
     # spacecraft and control
     inertia_kg_m2: tuple[float, float, float] = (900.0, 800.0, 600.0)
     mass_kg: float = 750.0
@@ -482,7 +484,8 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     ukf.alpha, ukf.beta, ukf.kappa, ukf.switchMag = 0.02, 2.0, 0.0, 1.2
     ukf.stateInit = [*sigma_bn_from_q_body_icrs(q_init).tolist(), 0.0, 0.0, 0.0]
     ukf.covarInit = np.diag([1e-4] * 3 + [1e-6] * 3).reshape(-1).tolist()
-    qn = np.diag([(cfg.arw_rad_sqrt_s / 4.0) ** 2] * 3 + [1e-12] * 3)
+    q_att, q_rate = cfg.ukf_process_sigma
+    qn = np.diag([q_att**2] * 3 + [q_rate**2] * 3)
     ukf.qNoise = qn.reshape(-1).tolist()
     lp = inertialUKF.LowPassFilterData()
     lp.hStep, lp.omegCutoff = 1.0 / cfg.gyro_hz, 15.0 / (2.0 * np.pi)
