@@ -15,6 +15,16 @@ the topics of DESIGN.md that ``adfusion replay`` and Foxglove read:
 Metadata ``config`` carries what a replay needs (camera mounting, catalogue epoch and limit,
 gyro noise, exposure); the camera model is attached as ``camera.json``. Nothing time- or
 machine-dependent is written: the same seed gives the same file, byte for byte.
+
+Example (:func:`adfusion.basilisk.scenarios.run_loop` adds the module when given a log):
+    >>> import os, tempfile
+    >>> from adfusion.basilisk.scenarios import run_loop, scenario
+    >>> from adfusion.logs import LogWriter, McapLogReader
+    >>> path = os.path.join(tempfile.mkdtemp(), "acs.mcap")
+    >>> with LogWriter(path) as log:
+    ...     _ = run_loop(scenario("leo", duration_s=1.0), "adfusion", seed=1, log=log)
+    >>> sorted(c.topic for c in McapLogReader(path).channels.values())[:4]
+    ['/camera/annotations', '/camera/calibration', '/camera/centroids', '/camera/preview']
 """
 
 from __future__ import annotations
