@@ -97,6 +97,9 @@ class AcsReport:
     estimation: dict[str, dict[str, float]] = field(default_factory=dict)  # estimator → stats
     camera: dict[str, Any] = field(default_factory=dict)
     cost_us: dict[str, dict[str, float]] = field(default_factory=dict)
+    # estimation error inside the scenario's events (the slew's first 120 s, each outage
+    # window and 10 s after it): window name → estimator → stats
+    windows: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
     wall_s: dict[str, float] = field(default_factory=dict)
     log_path: str | None = None
 
@@ -119,6 +122,12 @@ class AcsReport:
             lines.append(f"| {ESTIMATORS.get(name, name)} | {s['rms_arcsec']:.2f} | "
                          f"{s['p95_arcsec']:.2f} | {s['max_arcsec']:.2f} | "
                          f"{s['mean_nees']:.2f} |")
+        for label, per in self.windows.items():
+            lines += ["", f"| estimation error, {label} | RMS (″) | p95 (″) | max (″) |",
+                      "|---|---|---|---|"]
+            for name, st in per.items():
+                lines.append(f"| {ESTIMATORS.get(name, name)} | {st['rms_arcsec']:.2f} | "
+                             f"{st['p95_arcsec']:.2f} | {st['max_arcsec']:.2f} |")
         if self.camera:
             c = self.camera
             lines += ["", f"camera: {c['frames']} frames, {c['frames_3_stars']} with ≥ 3 stars "
@@ -169,6 +178,21 @@ def summarize(runs: dict[str, LoopRun], settle_s: float = 60.0,
         s["mean_nees"] = float(np.mean(nees(err, est["P"][ok][:, :3, :3]))) if ok.any() \
             else float("nan")
         rep.estimation[name] = s
+    events = []
+    if cfg.slew_at_s is not None:
+        events.append((f"slew ({cfg.slew_at_s:g}–{cfg.slew_at_s + 120:g} s)",
+                       cfg.slew_at_s, cfg.slew_at_s + 120.0))
+    for a, b in cfg.blind_windows:
+        events.append((f"outage ({a:g}–{b:g} s, +10 s)", a, b + 10.0))
+    for label, a, b in events:
+        w_ev = (base.t >= a) & (base.t < b)
+        rep.windows[label] = {}
+        for name in ("adfusion", "adfusion_st", "ukf"):
+            est = base.estimates.get(name)
+            if est is not None and (w_ev & est["valid"]).any():
+                ok = w_ev & est["valid"]
+                rep.windows[label][name] = _stats_deg(rot.angle_between(base.q_true[ok],
+                                                                        est["q"][ok]))
     if base.camera_steps:
         rep.camera = _camera_figures(base, wrong_deg)
         for kind in ("gyro", "frame"):
