@@ -1,4 +1,4 @@
-"""Basilisk's attitude conventions ↔ the project's (DESIGN.md).
+"""Basilisk's attitude conventions ↔ the project's (docs/conventions.md).
 
 Basilisk writes the body attitude as the MRP ``sigma_BN`` of the DCM ``[BN]`` (``v_B = [BN]
 v_N``), and its Euler-parameter helpers build ``[BN] = EP2C(β)`` — the transpose of the

@@ -1,7 +1,7 @@
 """The project's MCAP log of a Basilisk run, written by a Basilisk module as the run goes.
 
 :class:`McapLogModule` runs last in the flight-software process and writes, in time order,
-the topics of DESIGN.md that ``adfusion replay`` and Foxglove read:
+the topics of docs/concepts/log-topics.md that ``adfusion replay`` and Foxglove read:
 
 * ``/imu/gyro`` (body-frame rate), ``/mag`` (``b_body``, ``b_ref_icrs`` in nT);
 * ``/truth/state`` and ``/truth/pose`` — Basilisk's spacecraft state (at the gyro rate);
