@@ -33,7 +33,7 @@ def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
 
         bar = tqdm(total=len(scenario.t_frame), unit="frame", desc="simulate",
                    mininterval=0.5)
-    with LogWriter(out_path) as log:
+    with LogWriter(out_path, start_utc=scenario.start_utc) as log:
         log.add_metadata("config", _jsonable(scenario.config))
         log.add_camera_model(scenario.camera.to_dict())
         cam = scenario.camera

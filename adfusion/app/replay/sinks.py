@@ -34,8 +34,17 @@ from adfusion.starid.solver import Solver
 if TYPE_CHECKING:
     from adfusion.app.replay.run import Run
 
-__all__ = ["InViewCounter", "LogSink", "ReplaySummary", "SmootherSink", "SummarySink",
-           "view_radius"]
+__all__ = [
+    "InViewCounter",
+    "LayoutSink",
+    "LogSink",
+    "ReplaySummary",
+    "SmootherSink",
+    "SummarySink",
+    "attitude_deg",
+    "attitude_error",
+    "view_radius",
+]
 
 
 @dataclass
@@ -118,19 +127,23 @@ class LogSink:
     """The output MCAP (``compression`` as :func:`adfusion.app.replay.replay` documents).
 
     Inputs (gyro, magnetometer, truth, frames) are copied as read — no decode/encode round
-    trip; each frame adds ``/starid/solution``, ``/camera/annotations``, and with an estimate
-    ``/estimate/state``, ``/estimate/pose`` and ``/tf``. Other sinks write their products
-    through :attr:`log` before it closes."""
+    trip; each frame adds ``/starid/solution``, ``/camera/annotations``, and with an
+    estimate ``/estimate/state``, ``/estimate/attitude`` (degrees), ``/estimate/pose`` and
+    ``/tf``. With a known start time (``Run.start_utc``) the log times are UTC. Other sinks
+    write their products through :attr:`log` before it closes."""
 
     def __init__(self, path, compression: str = "lz4") -> None:
         self.path = path
         self.compression = compression
         self.log: LogWriter | None = None
         self.q_body_cam = np.asarray(rot.IDENTITY)
+        self.estimator = None
 
     def open(self, run: Run) -> None:
         self.q_body_cam = run.q_body_cam
-        self.log = log = LogWriter(self.path, compression=self.compression)
+        self.estimator = run.estimator
+        self.log = log = LogWriter(self.path, compression=self.compression,
+                                   start_utc=run.start_utc)
         log.add_metadata("replay", run.replay_metadata)
         if run.config:
             log.add_metadata("config", run.config)
@@ -147,9 +160,15 @@ class LogSink:
                                                   msg.raw)
                 else:
                     self.log.write_image(msg.t_s, msg.payload, "camera")
-            self._record_frame(msg.t_s, step.record)
+            else:
+                self._copy(msg)
+            self._record_frame(msg.t_s, step.record, step.truth_q)
         elif kind in (GYRO, MAG, TRUTH):
             self._copy(msg)
+        elif msg.topic == topics.TRUTH_POSE:  # the truth's pose, and its frame for the 3D view
+            q_icrs_body = np.asarray(msg.payload["q_wxyz"], dtype=float)
+            self.log.write_pose(topics.TRUTH_POSE, msg.t_s, q_icrs_body, "icrs")
+            self.log.write_tf(msg.t_s, [("icrs", "body_truth", q_icrs_body, (0.0, 0.0, 0.0))])
 
     def close(self) -> None:
         if self.log is not None:
@@ -162,33 +181,106 @@ class LogSink:
         else:
             self.log.write_json(msg.topic, msg.t_s, msg.payload)
 
-    def _record_frame(self, t: float, rec: StepRecord) -> None:
+    def _record_frame(self, t: float, rec: StepRecord, truth_q=None) -> None:
         log, sol = self.log, rec.solution
         if sol is not None:
             predicted = None
             cand = sol.candidates[0] if sol.candidates else None
             if sol.ok and cand is not None:
                 predicted = cand.predicted_xy
+            det_xy = rec.detections_xy
+            res = sol.residuals_rad if sol.ok and sol.residuals_rad is not None else ()
             log.write_json(topics.STARID_SOLUTION, t, {
                 "t": t, "ok": sol.ok, "mode": sol.mode, "reason": sol.reason,
                 "q_cam_icrs": sol.q_cam_icrs if sol.ok else None,
                 "matches": [list(m) for m in sol.matches],
                 "matching_counter": sol.matching_counter,
                 "p_false": sol.p_false, "cone_deg": rec.cone_deg,
-                "time_ms": sol.time_s * 1e3, "fix_accepted": rec.fix_accepted})
-            det_xy = rec.detections_xy
+                "time_ms": sol.time_s * 1e3, "fix_accepted": rec.fix_accepted,
+                "n_detections": 0 if det_xy is None else len(det_xy),
+                "residuals_arcsec": np.degrees(np.asarray(res, dtype=float)) * 3600})
             if det_xy is not None:
                 identified = [(float(det_xy[d][0]), float(det_xy[d][1]), str(i))
                               for d, i in sol.matches if d < len(det_xy)]
                 log.write_annotations(t, det_xy, identified=identified, predicted_xy=predicted)
         if rec.q_body_icrs is not None:
-            log.write_json(topics.ESTIMATE_STATE, t, {
-                "t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
-                "cov_diag": rec.sigma_rad**2, "nis": rec.nis,
-                "rejected": [list(r) for r in rec.rejected]})
+            state = {"t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
+                     "cov_diag": rec.sigma_rad**2, "nis": rec.nis.get("star fix"),
+                     "rejected": [{"input": i, "reason": r} for i, r in rec.rejected]}
+            if self.estimator.video_only:  # no gyro, no bias: the filter's rate instead
+                state["bias"] = None
+                state["omega"] = np.asarray(self.estimator.filter.omega_rad_s)
+            log.write_json(topics.ESTIMATE_STATE, t, state)
+            log.write_json(topics.ESTIMATE_ATTITUDE, t, attitude_deg(
+                t, rec.q_body_icrs, rec.sigma_rad[:3], rec.star_mode or None, rec.n_stars))
+            if truth_q is not None:
+                log.write_json(topics.ESTIMATE_ERROR, t, attitude_error(
+                    t, rec.q_body_icrs, truth_q, rec.sigma_rad[:3]))
             log.write_attitude(topics.ESTIMATE_POSE, t, rec.q_body_icrs)
             log.write_tf(t, [("icrs", "body", rot.inverse(rec.q_body_icrs), (0.0, 0.0, 0.0)),
                              ("body", "camera", self.q_body_cam, (0.0, 0.0, 0.0))])
+
+
+def attitude_error(t: float, q_body_icrs, q_true_body_icrs, sigma_rad) -> dict[str, Any]:
+    """An ``/estimate/error`` record: the estimate's error against the truth as a rotation
+    vector in body axes (x, y cross-boresight, z roll), deg, its angle, and the 3σ bounds.
+
+    Example:
+        >>> import numpy as np
+        >>> from adfusion.starid import rotations as rot
+        >>> q_err = rot.exp_map([0.0, 0.0, np.radians(0.1)])
+        >>> e = attitude_error(0.0, q_err, [1.0, 0.0, 0.0, 0.0], [1e-3] * 3)
+        >>> [round(v, 6) for v in e["error_deg"]], round(e["angle_deg"], 6)
+        ([0.0, 0.0, 0.1], 0.1)
+    """
+    vec = rot.log_map(rot.multiply(np.asarray(q_body_icrs, dtype=float),
+                                   rot.inverse(np.asarray(q_true_body_icrs, dtype=float))))
+    return {"t": t, "error_deg": np.degrees(vec).tolist(),
+            "angle_deg": float(np.degrees(np.linalg.norm(vec))),
+            "sigma3_deg": (3.0 * np.degrees(np.asarray(sigma_rad, dtype=float))).tolist()}
+
+
+class LayoutSink:
+    """A Foxglove layout beside the output, ``OUT.layout.json``
+    (:func:`adfusion.app.layout.foxglove_layout`): the image with its annotations, a 3D view
+    of the body, camera and truth frames in ``icrs``, plots of the attitude error with its
+    3σ bounds, the NIS, the stars per frame and the star-ID mode."""
+
+    def __init__(self, out_path) -> None:
+        from pathlib import Path
+
+        out = Path(out_path)
+        self.path = out.with_name(out.stem + ".layout.json")
+
+    def open(self, run: Run) -> None:
+        import json
+
+        from adfusion.app.layout import foxglove_layout
+
+        self.path.write_text(json.dumps(foxglove_layout(truth=True), indent=2))
+
+    def take(self, step: Step) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def attitude_deg(t: float, q_body_icrs, sigma_rad, mode: str | None = None,
+                 n_stars: int = 0) -> dict[str, Any]:
+    """An ``/estimate/attitude`` record: RA, Dec, roll of body +z (deg) with 1σ per axis.
+
+    Example:
+        >>> import numpy as np
+        >>> a = attitude_deg(0.0, [1.0, 0.0, 0.0, 0.0], np.radians([0.01, 0.01, 0.1]))
+        >>> round(a["dec_deg"], 6), [round(s, 6) for s in a["sigma_deg"]]
+        (90.0, [0.01, 0.01, 0.1])
+    """
+    ra, dec, roll = rot.radec_roll_from_q_cam_icrs(np.asarray(q_body_icrs, dtype=float))
+    return {"t": t, "ra_deg": float(np.degrees(ra)), "dec_deg": float(np.degrees(dec)),
+            "roll_deg": float(np.degrees(roll)),
+            "sigma_deg": np.degrees(np.asarray(sigma_rad, dtype=float)).tolist(),
+            "mode": mode, "n_stars": int(n_stars)}
 
 
 class SummarySink:

@@ -117,6 +117,7 @@ class DetectAhead:
     def __init__(self, camera: Camera | None = None, depth: int = 8) -> None:
         self.camera = camera
         self.depth = depth
+        self.detect_kwargs: dict = {}  # starid.detect's settings (e.g. sigma)
         self._worker = None
         self._keys: dict[int, int] = {}
         self._submitted = 0
@@ -153,7 +154,7 @@ class DetectAhead:
                         key = self._submitted
                         self._submitted += 1
                         self._keys[id(msg.payload)] = key
-                        self._worker.submit(key, msg.payload, self.camera)
+                        self._worker.submit(key, msg.payload, self.camera, **self.detect_kwargs)
                     frames += 1
                 while frames > self.depth:
                     out = buf.popleft()
@@ -168,5 +169,5 @@ class DetectAhead:
         if key is None or self._worker is None:  # not submitted (or not read through us)
             from adfusion.starid import detect
 
-            return detect(frame, camera)
+            return detect(frame, camera, **self.detect_kwargs)
         return self._worker.result(key)
