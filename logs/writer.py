@@ -65,7 +65,11 @@ def utc_ns(when: Any) -> int:
     import datetime as dt
 
     if isinstance(when, str):
-        when = dt.datetime.fromisoformat(when.replace("Z", "+00:00"))
+        try:
+            when = dt.datetime.fromisoformat(when.replace("Z", "+00:00"))
+        except ValueError:
+            raise ValueError(f"start time {when!r}: give a UTC time such as "
+                             "1995-11-07T08:07:00Z") from None
     if not isinstance(when, dt.datetime) or when.tzinfo is None:
         raise ValueError(f"start time {when!r}: give a UTC time such as 1995-11-07T08:07:00Z")
     delta = when - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)

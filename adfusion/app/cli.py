@@ -405,7 +405,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from adfusion.app.report import report
 
-    files = report(args.log, args.output)
+    files = report(args.log, args.output, progress=sys.stderr.isatty())
     print("\n".join(str(f) for f in files))
     return 0
 
@@ -426,8 +426,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
           f"→ {sim} ({time.perf_counter() - t0:.1f} s)")
     s = replay(sim, rep, progress=sys.stderr.isatty())
     print(f"replayed → {rep}\n{s}")
-    files = report(rep, out / "report")
-    print(f"report → {files[-1]} (+{len(files) - 1} plots); open {rep} in Foxglove\n"
+    files = report(rep, out / "report", progress=sys.stderr.isatty())
+    print(f"report → {files[-1]} (+{len(files) - 2} plots); open {rep} in Foxglove with "
+          f"{rep.with_name(rep.stem + '.layout.json')}\n"
           f"total {time.perf_counter() - t0:.1f} s")
     return 0
 
