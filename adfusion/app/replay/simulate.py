@@ -13,11 +13,11 @@ Example:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from adfusion.logs import LogWriter
+from adfusion.plain import to_jsonable
 from adfusion.starid import rotations as rot
 
 __all__ = ["simulate"]
@@ -34,7 +34,7 @@ def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
         bar = tqdm(total=len(scenario.t_frame), unit="frame", desc="simulate",
                    mininterval=0.5)
     with LogWriter(out_path, start_utc=scenario.start_utc) as log:
-        log.add_metadata("config", _jsonable(scenario.config))
+        log.add_metadata("config", to_jsonable(scenario.config))
         log.add_camera_model(scenario.camera.to_dict())
         cam = scenario.camera
         log.write_calibration(0.0, cam.width, cam.height, cam.K, cam.D, "camera")
@@ -64,15 +64,3 @@ def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
     if bar is not None:
         bar.close()
     return frames
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
