@@ -53,6 +53,27 @@ TRUTH_POSE = "/truth/pose"
 TF = "/tf"
 """Frame transforms (icrs → body → camera)."""
 
+MAX_CAMERAS = 8
+"""Cameras a log may hold: camera 0 on ``/camera/...``, camera k on ``/camera{k}/...``."""
+
+
+def camera_topic(k: int, leaf: str = "image") -> str:
+    """The topic of camera ``k``'s ``leaf`` (image, centroids, annotations, calibration).
+
+    Example:
+        >>> camera_topic(0), camera_topic(2, "annotations")
+        ('/camera/image', '/camera2/annotations')
+    """
+    if not 0 <= k < MAX_CAMERAS:
+        raise ValueError(f"camera index {k} outside 0..{MAX_CAMERAS - 1}")
+    return f"/camera/{leaf}" if k == 0 else f"/camera{k}/{leaf}"
+
+
+def camera_frame(k: int) -> str:
+    """The transform frame of camera ``k`` (``camera``, ``camera1``, …)."""
+    return "camera" if k == 0 else f"camera{k}"
+
+
 _FOXGLOVE: dict[str, tuple[str, str, str, str]] = {
     # topic: (schema, fields, units, frame)
     CAMERA_IMAGE: ("foxglove.RawImage", "timestamp, frame_id, width, height, encoding "

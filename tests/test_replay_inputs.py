@@ -283,3 +283,33 @@ def test_node_mcap_reader_reads_a_replay_output(flight):
     for m in McapLogReader(d / "ours.mcap"):
         ours[m.topic] = ours.get(m.topic, 0) + 1
     assert report["counts"] == ours
+
+
+def test_three_heads_fused_beat_the_best_single_head(tmp_path, capsys):
+    sim = tmp_path / "three.mcap"
+    assert main(["simulate", "leo3", "-o", str(sim), "--duration", "4", "--seed", "2"]) == 0
+    names = {m.topic for m in McapLogReader(sim)}
+    assert {"/camera/image", "/camera1/image", "/camera2/image"} <= names
+
+    def rms(out):
+        last = {}  # the estimate after every camera of a frame time has been taken
+        for m in McapLogReader(out):
+            if m.topic == topics.ESTIMATE_STATE:
+                last[m.payload["t"]] = m.payload["q_body_icrs"]
+        tt, tq = truth_of(sim)
+        t = np.array(sorted(last))
+        k = np.clip(np.searchsorted(tt, t - 1e-9), 0, len(tt) - 1)
+        e = np.degrees(rot.angle_between(np.array([last[x] for x in t]), tq[k]))
+        return float(np.sqrt(np.mean(e**2))), len(t)
+
+    results = {}
+    for heads in ("0,1,2", "0", "1", "2"):
+        out = tmp_path / f"h{heads.replace(',', '')}.mcap"
+        assert main(["replay", str(sim), "-o", str(out), "--heads", heads]) == 0
+        results[heads] = rms(out)
+    capsys.readouterr()
+    assert all(n == 16 for _, n in results.values()), results
+    best_single = min(results[h][0] for h in ("0", "1", "2"))
+    assert results["0,1,2"][0] < best_single, results
+    fused = {m.topic for m in McapLogReader(tmp_path / "h012.mcap")}
+    assert {"/camera1/annotations", "/camera2/calibration"} <= fused

@@ -53,8 +53,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=cmd_solve)
 
-    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo)")
-    sm.add_argument("scenario", choices=["oedipus", "leo"])
+    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo, "
+                        "leo3: three star-tracker heads 90° apart)")
+    sm.add_argument("scenario", choices=["oedipus", "leo", "leo3"])
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
     sm.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     sm.add_argument("--seed", type=int, default=0)
@@ -94,6 +95,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    "(default: the log's, else 1e-4)")
     g.add_argument("--gyro-rrw", type=float, metavar="RAD/S/√S", help="gyro rate random walk"
                    " (default: the log's, else 1e-6)")
+    g.add_argument("--heads", metavar="K,K", help="cameras of a several-camera log to fuse "
+                   "(default all; e.g. 0 for the first alone)")
     g.add_argument("--image-topic", help="ROS 2 bag: the image topic (default: by type)")
     g.add_argument("--imu-topic", help="ROS 2 bag: the Imu topic (default: by type)")
     g.add_argument("--mag-topic", help="ROS 2 bag: the MagneticField topic (default: by type)")
@@ -332,7 +335,8 @@ def _julian_year_now() -> float:
 def _scenario(name: str, duration: float, seed: int, render: bool):
     from adfusion.sensors import scenarios
 
-    return getattr(scenarios, name)(duration_s=duration, seed=seed, render=render)
+    make = scenarios.leo_three_heads if name == "leo3" else getattr(scenarios, name)
+    return make(duration_s=duration, seed=seed, render=render)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -371,6 +375,12 @@ def cmd_replay(args: argparse.Namespace) -> int:
             mount = []
         if len(mount) != 4:
             raise ValueError(f"--mount {args.mount}: give q_body_cam as four numbers w,x,y,z")
+    heads = None
+    if args.heads:
+        try:
+            heads = [int(k) for k in args.heads.split(",")]
+        except ValueError:
+            raise ValueError(f"--heads {args.heads}: camera indices such as 0,2") from None
     if args.start_utc:
         from adfusion.logs.writer import utc_iso
 
@@ -380,7 +390,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
                             q_body_cam=mount, start_utc=args.start_utc, sigma=args.sigma,
                             fov_error_deg=args.fov_error, epoch=args.epoch,
                             exposure_s=args.exposure, arw_rad_sqrt_s=args.gyro_arw,
-                            rrw_rad_s_sqrt_s=args.gyro_rrw)
+                            rrw_rad_s_sqrt_s=args.gyro_rrw, heads=heads)
     s = replay(args.input, args.output, options=options, progress=sys.stderr.isatty(),
                smooth=args.smooth, smooth_mode=args.smoother, compression=args.compression,
                fps=args.fps, timestamps=args.timestamps, imu=args.imu,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,7 @@ from adfusion.app.replay.sinks import LogSink, ReplaySummary, SmootherSink, Summ
 from adfusion.app.replay.sources import Source
 from adfusion.app.replay.stages import DetectAhead, EstimationStage, Step, TruthStage
 from adfusion.estimation.estimator import Estimator
+from adfusion.logs import topics
 from adfusion.starid import rotations as rot
 from adfusion.starid.camera import Camera
 from adfusion.starid.catalog import Catalog
@@ -51,7 +52,8 @@ class ReplayOptions:
     threshold (noise sigmas); ``fov_error_deg`` the ± uncertainty of the focal length for
     lost-in-space; ``epoch`` the catalogue epoch (Julian year); ``exposure_s`` the camera's
     exposure (motion smear in tracking); ``arw_rad_sqrt_s`` / ``rrw_rad_s_sqrt_s`` the
-    gyro's angle and rate random walks."""
+    gyro's angle and rate random walks; ``heads`` the cameras of a several-camera log to
+    replay (default all, fused in one estimator)."""
 
     use_gyro: bool = True
     use_mag: bool = True
@@ -66,6 +68,18 @@ class ReplayOptions:
     exposure_s: float | None = None
     arw_rad_sqrt_s: float | None = None
     rrw_rad_s_sqrt_s: float | None = None
+    heads: list[int] | None = None
+
+
+@dataclass
+class Head:
+    """One star camera of the replay: its index in the input (``/camera{k}/...`` topics),
+    model, mounting and solver."""
+
+    index: int
+    camera: Camera
+    q_body_cam: np.ndarray
+    solver: Solver
 
 
 @dataclass
@@ -82,6 +96,7 @@ class Run:
     estimator: Estimator
     options: ReplayOptions
     start_utc: str | None = None
+    heads: list[Head] = field(default_factory=list)  # every camera replayed, primary first
 
     @property
     def replay_metadata(self) -> dict[str, Any]:
@@ -125,7 +140,32 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
                     video_only=not options.use_gyro, detect=ahead,
                     exposure_s=None if exposure is None else float(exposure))
     start = options.start_utc or getattr(source, "start_utc", None) or config.get("start_utc")
-    return Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start)
+    r = Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start)
+    r.heads = [Head(0, camera, q_body_cam, solver)]
+    n_heads = len(config.get("heads", [])) or 1
+    selected = list(range(n_heads)) if options.heads is None else list(options.heads)
+    if any(not 0 <= k < n_heads for k in selected) or not selected:
+        raise ValueError(f"--heads {selected}: the log has cameras 0..{n_heads - 1}")
+    if selected != [0]:
+        models = source.camera_models()
+        r.heads = []
+        for k in selected:
+            cam_k = Camera.from_dict(models[k])
+            q_k = np.asarray(config["heads"][k]["q_body_cam"], dtype=np.float64)
+            solver_k = (solver if k == 0 and cam_k == camera else
+                        Solver(catalog, cam_k, centroid_sigma_px=max(sigma_px, 0.5), **extra))
+            r.heads.append(Head(k, cam_k, q_k, solver_k))
+        first = r.heads[0]
+        r.camera, r.camera_model, r.q_body_cam, r.solver = (first.camera, first.camera.to_dict(),
+                                                             first.q_body_cam, first.solver)
+        est = Estimator(first.solver, first.q_body_cam, arw_rad_sqrt_s=float(arw),
+                        rrw_rad_s_sqrt_s=float(rrw), video_only=not options.use_gyro,
+                        detect=ahead, exposure_s=None if exposure is None else float(exposure))
+        for h in r.heads[1:]:
+            est.add_camera(h.solver, h.q_body_cam)
+        r.estimator = est
+        ahead.cameras = {topics.camera_topic(h.index): h.camera for h in r.heads}
+    return r
 
 
 def _camera(source: Source, options: ReplayOptions) -> Camera:
@@ -167,8 +207,9 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
         ahead.start()
     try:
         r = _build(source, options, ahead)
-        stages = (TruthStage(), EstimationStage(r.estimator, use_gyro=options.use_gyro,
-                                                use_mag=options.use_mag))
+        stages = (TruthStage(), EstimationStage(
+            r.estimator, use_gyro=options.use_gyro, use_mag=options.use_mag,
+            cameras={h.index: i for i, h in enumerate(r.heads)}))
         messages = ahead.read(source if not progress else _progress(source))
         opened: list[Any] = []
         try:

@@ -138,6 +138,8 @@ class LogSink:
         self.log: LogWriter | None = None
         self.q_body_cam = np.asarray(rot.IDENTITY)
         self.estimator = None
+        self.multi = False
+        self.mounts: list[tuple] = []
 
     def open(self, run: Run) -> None:
         self.q_body_cam = run.q_body_cam
@@ -147,22 +149,35 @@ class LogSink:
         log.add_metadata("replay", run.replay_metadata)
         if run.config:
             log.add_metadata("config", run.config)
-        log.add_camera_model(run.camera_model)
-        cam = run.camera
-        log.write_calibration(0.0, cam.width, cam.height, cam.K, cam.D, "camera")
+        self.multi = len(run.heads) > 1 or run.heads[0].index != 0
+        if not self.multi:
+            log.add_camera_model(run.camera_model)
+            cam = run.camera
+            log.write_calibration(0.0, cam.width, cam.height, cam.K, cam.D, "camera")
+            self.mounts = [("body", "camera", self.q_body_cam, (0.0, 0.0, 0.0))]
+            return
+        self.mounts = []
+        for h in run.heads:  # several cameras: each on its own topics and frame
+            name = topics.camera_frame(h.index)
+            log.add_camera_model(h.camera.to_dict(),
+                                 "camera.json" if h.index == 0 else f"{name}.json")
+            log.write_calibration(0.0, h.camera.width, h.camera.height, h.camera.K, h.camera.D,
+                                  name, topic=topics.camera_topic(h.index, "calibration"))
+            self.mounts.append(("body", name, h.q_body_cam, (0.0, 0.0, 0.0)))
 
     def take(self, step: Step) -> None:
         kind, msg = step.kind, step.msg
         if kind == FRAME:
-            if msg.topic == topics.CAMERA_IMAGE:
+            if isinstance(msg.payload, np.ndarray):
                 if msg.raw is not None:  # a foxglove.RawImage: copied as read
                     self.log.write_protobuf_bytes(msg.topic, msg.t_s, "foxglove.RawImage",
                                                   msg.raw)
                 else:
-                    self.log.write_image(msg.t_s, msg.payload, "camera")
+                    self.log.write_image(msg.t_s, msg.payload, topics.camera_frame(step.head),
+                                         topic=msg.topic)
             else:
                 self._copy(msg)
-            self._record_frame(msg.t_s, step.record, step.truth_q)
+            self._record_frame(msg.t_s, step.record, step.truth_q, step.head)
         elif kind in (GYRO, MAG, TRUTH):
             self._copy(msg)
         elif msg.topic == topics.TRUTH_POSE:  # the truth's pose, and its frame for the 3D view
@@ -181,7 +196,7 @@ class LogSink:
         else:
             self.log.write_json(msg.topic, msg.t_s, msg.payload)
 
-    def _record_frame(self, t: float, rec: StepRecord, truth_q=None) -> None:
+    def _record_frame(self, t: float, rec: StepRecord, truth_q=None, head: int = 0) -> None:
         log, sol = self.log, rec.solution
         if sol is not None:
             predicted = None
@@ -190,7 +205,7 @@ class LogSink:
                 predicted = cand.predicted_xy
             det_xy = rec.detections_xy
             res = sol.residuals_rad if sol.ok and sol.residuals_rad is not None else ()
-            log.write_json(topics.STARID_SOLUTION, t, {
+            solution = {
                 "t": t, "ok": sol.ok, "mode": sol.mode, "reason": sol.reason,
                 "q_cam_icrs": sol.q_cam_icrs if sol.ok else None,
                 "matches": [list(m) for m in sol.matches],
@@ -198,11 +213,15 @@ class LogSink:
                 "p_false": sol.p_false, "cone_deg": rec.cone_deg,
                 "time_ms": sol.time_s * 1e3, "fix_accepted": rec.fix_accepted,
                 "n_detections": 0 if det_xy is None else len(det_xy),
-                "residuals_arcsec": np.degrees(np.asarray(res, dtype=float)) * 3600})
+                "residuals_arcsec": np.degrees(np.asarray(res, dtype=float)) * 3600}
+            if self.multi:
+                solution["camera"] = topics.camera_frame(head)
+            log.write_json(topics.STARID_SOLUTION, t, solution)
             if det_xy is not None:
                 identified = [(float(det_xy[d][0]), float(det_xy[d][1]), str(i))
                               for d, i in sol.matches if d < len(det_xy)]
-                log.write_annotations(t, det_xy, identified=identified, predicted_xy=predicted)
+                log.write_annotations(t, det_xy, identified=identified, predicted_xy=predicted,
+                                      topic=topics.camera_topic(head, "annotations"))
         if rec.q_body_icrs is not None:
             state = {"t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
                      "cov_diag": rec.sigma_rad**2, "nis": rec.nis.get("star fix"),
@@ -218,7 +237,7 @@ class LogSink:
                     t, rec.q_body_icrs, truth_q, rec.sigma_rad[:3]))
             log.write_attitude(topics.ESTIMATE_POSE, t, rec.q_body_icrs)
             log.write_tf(t, [("icrs", "body", rot.inverse(rec.q_body_icrs), (0.0, 0.0, 0.0)),
-                             ("body", "camera", self.q_body_cam, (0.0, 0.0, 0.0))])
+                             *self.mounts])
 
 
 def attitude_error(t: float, q_body_icrs, q_true_body_icrs, sigma_rad) -> dict[str, Any]:
@@ -295,11 +314,13 @@ class SummarySink:
         self.summary = summary if summary is not None else ReplaySummary()
         self.in_view: InViewCounter | None = None
         self.t_start = t_start
+        self.primary = 0
 
     def open(self, run: Run) -> None:
         if self.t_start is not None:
             self.summary.setup_s = time.perf_counter() - self.t_start
         self.in_view = InViewCounter(run.solver, run.q_body_cam)
+        self.primary = run.heads[0].index if run.heads else 0
 
     def take(self, step: Step) -> None:
         if step.kind != FRAME:
@@ -314,7 +335,8 @@ class SummarySink:
         elif sol is not None and sol.ok:
             s.rejected_fixes += 1
         if truth_q is not None:
-            self.in_view.add(truth_q, rec.fix_accepted)
+            if step.head == self.primary:  # the batch count knows the first camera's view
+                self.in_view.add(truth_q, rec.fix_accepted)
             if rec.q_body_icrs is not None:
                 s.errors_deg.append(float(np.degrees(rot.angle_between(rec.q_body_icrs,
                                                                        truth_q))))
@@ -343,6 +365,8 @@ class SmootherSink:
     def open(self, run: Run) -> None:
         from adfusion.estimation.smoother import SmootherInput
 
+        if len(run.heads) > 1:
+            raise ValueError("--smooth smooths one camera's log: choose one with --heads K")
         est = run.estimator
         self.solver = run.solver
         self.recording = SmootherInput(run.q_body_cam, arw_rad_sqrt_s=est.arw,

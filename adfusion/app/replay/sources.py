@@ -82,6 +82,13 @@ class McapInput:
     def camera_model(self) -> dict[str, Any] | None:
         return self.reader.camera_model()
 
+    def camera_models(self) -> list[dict[str, Any] | None]:
+        """Every camera's model (``camera.json``, ``camera1.json``, …) of a several-camera
+        log, in camera order."""
+        n = max(len(self.config.get("heads", [])), 1)
+        return [self.reader.camera_model("camera.json" if k == 0 else f"camera{k}.json")
+                for k in range(n)]
+
     def image_size(self) -> tuple[int, int] | None:
         return None
 
