@@ -240,6 +240,9 @@ def test_every_json_message_of_demo_and_replays_validates(flight, tmp_path, caps
     topics_out = {m.topic for m in McapLogReader(d / "ours.mcap")}
     assert {topics.TRUTH_POSE, topics.TRUTH_STATE, topics.ESTIMATE_ATTITUDE,
             topics.ESTIMATE_ERROR} <= topics_out
+    documented = {r["topic"] for r in topics.table()}  # the generated docs table
+    written = topics_out | {m.topic for m in McapLogReader(tmp_path / "sm.mcap")}
+    assert written <= documented, written - documented
 
 
 def test_aem_reads_back_with_ccsds_ndm_to_the_logs_quaternions(flight, tmp_path, capsys):
