@@ -316,3 +316,45 @@ def test_three_heads_fused_beat_the_best_single_head(tmp_path, capsys):
     assert results["0,1,2"][0] < best_single, results
     fused = {m.topic for m in McapLogReader(tmp_path / "h012.mcap")}
     assert {"/camera1/annotations", "/camera2/calibration"} <= fused
+
+
+def _ulog(path, gyro, mag):
+    """A minimal PX4 ULog (format version 1: header, flag bits, formats, subscriptions,
+    data), written from the ULog specification; pyulog is the independent reader."""
+    import struct
+
+    def msg(kind, payload):
+        return struct.pack("<HB", len(payload), ord(kind)) + payload
+
+    out = b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0) + msg("B", bytes(40))
+    out += msg("F", b"sensor_combined:uint64_t timestamp;float[3] gyro_rad;")
+    out += msg("F", b"vehicle_magnetometer:uint64_t timestamp;float[3] magnetometer_ga;")
+    out += msg("A", struct.pack("<BH", 0, 1) + b"sensor_combined")
+    out += msg("A", struct.pack("<BH", 0, 2) + b"vehicle_magnetometer")
+    rows = sorted([(t, 1, v) for t, v in gyro] + [(t, 2, v) for t, v in mag],
+                  key=lambda r: r[0])
+    for t, mid, v in rows:
+        out += msg("D", struct.pack("<HQ3f", mid, round(t * 1e6), *v))
+    path.write_bytes(out)
+
+
+def test_px4_ulog_imu_merges_with_a_folder_of_frames(tmp_path):
+    pytest.importorskip("pyulog")
+    from adfusion.app.replay.sources import open_input
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        cv2.imwrite(str(folder / f"f{k}.png"), np.zeros((8, 8), np.uint8))
+    _ulog(tmp_path / "imu.ulg", [(0.01 * k, (0.125, -0.25, 0.5)) for k in range(25)],
+          [(0.1 * k, (0.25, 0.0, -0.5)) for k in range(3)])
+    src = open_input(folder, fps=10.0, imu=tmp_path / "imu.ulg")
+    msgs = list(src)
+    kinds = [m.topic for m in msgs]
+    assert kinds.count(topics.GYRO) == 25 and kinds.count(topics.MAG) == 3
+    assert kinds.count(topics.CAMERA_IMAGE) == 3 and src.has_gyro
+    assert [m.t_s for m in msgs] == sorted(m.t_s for m in msgs)
+    gyro = next(m for m in msgs if m.topic == topics.GYRO)
+    mag = next(m for m in msgs if m.topic == topics.MAG)
+    assert gyro.payload["omega"] == [0.125, -0.25, 0.5]  # exact in float32
+    assert mag.payload["b_body"] == [25000.0, 0.0, -50000.0]  # gauss → nT

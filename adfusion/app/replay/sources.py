@@ -117,7 +117,9 @@ def _sensors(imu: str | os.PathLike[str] | None, problems: list[str]) -> list[Me
 
 def read_ulog(path: str | os.PathLike[str]) -> list[Message]:
     """Gyro (``sensor_combined.gyro_rad``, rad/s) and magnetometer (``vehicle_magnetometer``
-    or ``sensor_mag``, gauss → nT) samples of a PX4 ULog, on the log's clock (s)."""
+    or ``sensor_mag``, gauss → nT) samples of a PX4 ULog, on the log's clock (its
+    ``timestamp``, µs since boot, in seconds): the frames' times must be on that clock
+    (``--timestamps``). Needs ``pyulog`` (the ``ulog`` extra)."""
     try:
         from pyulog import ULog
     except ImportError:
@@ -129,14 +131,14 @@ def read_ulog(path: str | os.PathLike[str]) -> list[Message]:
         f = d.data
         if d.name == "sensor_combined":
             for k in range(len(f["timestamp"])):
-                out.append(Message(f["timestamp"][k] / 1e6, topics.GYRO, {"omega": [
+                out.append(Message(float(f["timestamp"][k]) / 1e6, topics.GYRO, {"omega": [
                     float(f[f"gyro_rad[{i}]"][k]) for i in range(3)]}))
         elif d.name in ("vehicle_magnetometer", "sensor_mag"):
             key = "magnetometer_ga" if "magnetometer_ga[0]" in f else None
             for k in range(len(f["timestamp"])):
                 b = ([float(f[f"{key}[{i}]"][k]) for i in range(3)] if key else
                      [float(f[a][k]) for a in ("x", "y", "z")])
-                out.append(Message(f["timestamp"][k] / 1e6, topics.MAG,
+                out.append(Message(float(f["timestamp"][k]) / 1e6, topics.MAG,
                                    {"b_body": [1e5 * v for v in b]}))
     out.sort(key=lambda m: m.t_s)
     return out
