@@ -198,6 +198,7 @@ def test_missing_pieces_are_named_in_one_line(flight, tmp_path, capsys):
         (["replay", str(sim), "-o", str(tmp_path / "o.mcap"), "--start-utc", "yesterday"],
          "start"),
         (["export", str(sim), "--aem", str(tmp_path / "x.aem")], "replay"),
+        (["report", str(sim), "-o", str(tmp_path / "rep")], "replay"),
     ]
     for argv, needle in cases:
         assert main(argv) == 2, argv
@@ -240,6 +241,14 @@ def test_every_json_message_of_demo_and_replays_validates(flight, tmp_path, caps
     topics_out = {m.topic for m in McapLogReader(d / "ours.mcap")}
     assert {topics.TRUTH_POSE, topics.TRUTH_STATE, topics.ESTIMATE_ATTITUDE,
             topics.ESTIMATE_ERROR} <= topics_out
+    layout = json.loads((d / "ours.layout.json").read_text())  # Foxglove's panels
+    named = set()
+    for panel in layout["configById"].values():
+        for path in panel.get("paths", []):
+            named.add("/" + path["value"].split("/", 1)[1].split(".")[0])
+        named |= set(panel.get("imageMode", {}).get("annotations", {}))
+        named |= set(panel.get("topics", {}))
+    assert named and named <= topics_out, named - topics_out
     documented = {r["topic"] for r in topics.table()}  # the generated docs table
     written = topics_out | {m.topic for m in McapLogReader(tmp_path / "sm.mcap")}
     assert written <= documented, written - documented
