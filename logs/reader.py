@@ -341,7 +341,7 @@ class McapLogReader:
                           stacklevel=3)
             return None
         # JSON and raw frames keep their bytes, so that a replay copies them as read
-        keep = decoder is json.loads or channel.schema_name == "foxglove.RawImage"
+        keep = decoder is json.loads or channel.schema_name in _KEEP_RAW
         return Message((record.log_time - self.clock_offset_ns) / 1e9, topic, payload,
                        record.data if keep else None)
 
@@ -439,6 +439,9 @@ class McapLogReader:
             return None
         return json.loads(self.attachments[name][1])
 
+
+# protobuf messages whose bytes a replay copies to its output as read
+_KEEP_RAW = frozenset({"foxglove.RawImage", "foxglove.PoseInFrame"})
 
 # Chunks read ahead of the one being merged (each ~1 MB of records).
 _PREFETCH = 2

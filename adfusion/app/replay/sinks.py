@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -182,7 +183,11 @@ class LogSink:
             self._copy(msg)
         elif msg.topic == topics.TRUTH_POSE:  # the truth's pose, and its frame for the 3D view
             q_icrs_body = np.asarray(msg.payload["q_wxyz"], dtype=float)
-            self.log.write_pose(topics.TRUTH_POSE, msg.t_s, q_icrs_body, "icrs")
+            if msg.raw is not None:  # copied as read
+                self.log.write_protobuf_bytes(topics.TRUTH_POSE, msg.t_s,
+                                              "foxglove.PoseInFrame", msg.raw)
+            else:
+                self.log.write_pose(topics.TRUTH_POSE, msg.t_s, q_icrs_body, "icrs")
             self.log.write_tf(msg.t_s, [("icrs", "body_truth", q_icrs_body, (0.0, 0.0, 0.0))])
 
     def close(self) -> None:
@@ -243,6 +248,7 @@ class LogSink:
 def attitude_error(t: float, q_body_icrs, q_true_body_icrs, sigma_rad) -> dict[str, Any]:
     """An ``/estimate/error`` record: the estimate's error against the truth as a rotation
     vector in body axes (x, y cross-boresight, z roll), deg, its angle, and the 3σ bounds.
+    (Float arithmetic: per frame, numpy's per-call overhead was most of the cost.)
 
     Example:
         >>> import numpy as np
@@ -252,11 +258,17 @@ def attitude_error(t: float, q_body_icrs, q_true_body_icrs, sigma_rad) -> dict[s
         >>> [round(v, 6) for v in e["error_deg"]], round(e["angle_deg"], 6)
         ([0.0, 0.0, 0.1], 0.1)
     """
-    vec = rot.log_map(rot.multiply(np.asarray(q_body_icrs, dtype=float),
-                                   rot.inverse(np.asarray(q_true_body_icrs, dtype=float))))
-    return {"t": t, "error_deg": np.degrees(vec).tolist(),
-            "angle_deg": float(np.degrees(np.linalg.norm(vec))),
-            "sigma3_deg": (3.0 * np.degrees(np.asarray(sigma_rad, dtype=float))).tolist()}
+    tw, tx, ty, tz = (float(v) for v in q_true_body_icrs)
+    w, x, y, z = rot.hamilton(tuple(float(v) for v in q_body_icrs), (tw, -tx, -ty, -tz))
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * math.atan2(s, w)
+    k = angle / s if s > 1e-12 else 2.0 / max(w, 1e-300)
+    deg = math.degrees(1.0)
+    sig = [3.0 * deg * float(v) for v in sigma_rad]
+    return {"t": t, "error_deg": [k * x * deg, k * y * deg, k * z * deg],
+            "angle_deg": angle * deg, "sigma3_deg": sig}
 
 
 class LayoutSink:
@@ -287,7 +299,9 @@ class LayoutSink:
 
 def attitude_deg(t: float, q_body_icrs, sigma_rad, mode: str | None = None,
                  n_stars: int = 0) -> dict[str, Any]:
-    """An ``/estimate/attitude`` record: RA, Dec, roll of body +z (deg) with 1σ per axis.
+    """An ``/estimate/attitude`` record: RA, Dec, roll of body +z (deg) with 1σ per axis —
+    :func:`adfusion.starid.rotations.radec_roll_from_q_cam_icrs` of ``q_body_icrs``, in
+    float arithmetic.
 
     Example:
         >>> import numpy as np
@@ -295,11 +309,25 @@ def attitude_deg(t: float, q_body_icrs, sigma_rad, mode: str | None = None,
         >>> round(a["dec_deg"], 6), [round(s, 6) for s in a["sigma_deg"]]
         (90.0, [0.01, 0.01, 0.1])
     """
-    ra, dec, roll = rot.radec_roll_from_q_cam_icrs(np.asarray(q_body_icrs, dtype=float))
-    return {"t": t, "ra_deg": float(np.degrees(ra)), "dec_deg": float(np.degrees(dec)),
-            "roll_deg": float(np.degrees(roll)),
-            "sigma_deg": np.degrees(np.asarray(sigma_rad, dtype=float)).tolist(),
-            "mode": mode, "n_stars": int(n_stars)}
+    w, x, y, z = (float(v) for v in q_body_icrs)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    # rows 1 and 2 of R(q) (ICRS → body): body +y and +z in ICRS
+    r1 = (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+    b = (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+    up = (-r1[0], -r1[1], -r1[2])
+    ra = math.atan2(b[1], b[0]) % (2 * math.pi)
+    dec = math.asin(max(-1.0, min(1.0, b[2])))
+    e = (-b[1], b[0], 0.0)  # z × b
+    ne = math.hypot(e[0], e[1])
+    e = (0.0, 1.0, 0.0) if ne < 1e-12 else (e[0] / ne, e[1] / ne, 0.0)
+    north = (b[1] * e[2] - b[2] * e[1], b[2] * e[0] - b[0] * e[2], b[0] * e[1] - b[1] * e[0])
+    roll = math.atan2(sum(u * v for u, v in zip(up, e, strict=True)),
+                      sum(u * v for u, v in zip(up, north, strict=True))) % (2 * math.pi)
+    deg = math.degrees(1.0)
+    return {"t": t, "ra_deg": ra * deg, "dec_deg": dec * deg, "roll_deg": roll * deg,
+            "sigma_deg": [deg * float(v) for v in sigma_rad], "mode": mode,
+            "n_stars": int(n_stars)}
 
 
 class SummarySink:
