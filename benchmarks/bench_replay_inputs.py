@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import tempfile
 import time
@@ -114,6 +115,7 @@ def run(duration_s: float = 20.0, rounds: int = 2) -> dict:
     return {"frames": n, "duration_s": duration_s, "rounds": rounds, "inputs": best,
             "frame_size": [int(scenario.camera.width), int(scenario.camera.height)],
             "machine": {"python": platform.python_version(), "cpu": platform.processor(),
+                        "cores": os.cpu_count(), "load_average_1min": os.getloadavg()[0],
                         "when": time.strftime("%Y-%m-%d", time.gmtime())}}
 
 
