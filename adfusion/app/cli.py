@@ -219,12 +219,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, OSError) as e:
-        print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
-        return 2
     except BrokenPipeError:  # output piped into `head`: not an error
         sys.stderr.close()
         return 0
+    except (ValueError, OSError) as e:
+        print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
+        return 2
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
