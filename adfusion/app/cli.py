@@ -6,7 +6,7 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 Example:
     >>> from adfusion.app.cli import build_parser
     >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:5]
-    ['bench', 'cache', 'calibrate', 'catalog', 'demo']
+    ['acs', 'bench', 'cache', 'calibrate', 'catalog']
 """
 
 from __future__ import annotations
@@ -206,6 +206,20 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
         bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
         bench_sweep.add_arguments(sw)
         sw.set_defaults(func=bench_sweep.cli)
+
+    a = sub.add_parser("acs", help="closed-loop attitude control on Basilisk, camera in the "
+                       "loop (needs the bsk extra)")
+    a.add_argument("scenario", help="leo, slew, outage or misaligned")
+    a.add_argument("-o", "--output", required=True, help="MCAP log; the report is written "
+                   "beside it (.report.md, .report.json, .png)")
+    a.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
+    a.add_argument("--duration", type=float, default=None, help="seconds (default: the "
+                   "scenario's, 600)")
+    a.add_argument("--images", choices=("preview", "all"), default="preview",
+                   help="log every frame's image, or one in 40 with every frame's centroids "
+                   "(default preview)")
+    a.add_argument("--json", action="store_true", help="print the report as JSON")
+    a.set_defaults(func=cmd_acs)
 
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -781,6 +795,23 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _run_bench(module, args: argparse.Namespace) -> int:
     module.run(args)
+    return 0
+
+
+def cmd_acs(args: argparse.Namespace) -> int:
+    try:
+        from adfusion.basilisk.acs import run_acs
+    except ModuleNotFoundError as e:
+        if (e.name or "").split(".")[0] != "Basilisk":
+            raise
+        raise ValueError("Basilisk is not installed: pip install 'adfusion[bsk]'") from None
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError("--duration must be positive")
+    t0 = time.perf_counter()
+    rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
+                  images=args.images)
+    print(json.dumps(rep.as_dict(), indent=2) if args.json else rep.table())
+    print(f"→ {args.output} and its report ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return 0
 
 
