@@ -207,6 +207,16 @@ def topics_table() -> str:
         out = ["| topic | schema | fields | units | frame |", "|---|---|---|---|---|"]
         out += [f"| `{r['topic']}` | `{r['schema']}` | {_cell(r['fields'])} | "
                 f"{_cell(r['units'])} | {_cell(r['frame'])} |" for r in rows]
+        # topics the module names but its table leaves out: described by their docstrings
+        listed = {r["topic"] for r in rows}
+        for topic, doc in sorted(topic_docs().items()):
+            if topic not in listed:
+                out.append(f"| `{topic}` | `adfusion.Json` | {_cell(doc.replace('``', '`'))} "
+                           "| — | — |")
+        missing = sorted(set(code_topics()) - listed - set(topic_docs()))
+        if missing:
+            raise RuntimeError(f"docs/gen_topics.py: topics neither in topics.table() nor "
+                               f"documented in adfusion.logs.topics: {', '.join(missing)}")
         return "\n".join(out)
     check()
     schemas = _module("schemas").JSON_SCHEMAS
