@@ -146,6 +146,7 @@ def fit_camera_model(
     camera: Camera,
     terms: str | tuple[str, ...] = "auto",
     q_cam_icrs: list[ArrayLike] | None = None,
+    free_principal: bool = True,
 ) -> CameraModelFit:
     """Fit a pinhole camera (focal length, principal point, pixel aspect, OpenCV radial
     k1, k2 and tangential p1, p2) and one attitude per frame to identified stars.
@@ -154,7 +155,11 @@ def fit_camera_model(
     directions (N, 3); one frame is the solver's self-calibration, many a calibration run
     (``adfusion calibrate``). ``terms`` names what to fit (:data:`CAMERA_TERMS`), or
     ``"auto"``: the nested model (:data:`_AUTO_MODELS`) with the lowest Bayesian
-    information criterion that the star count supports. The rest of ``camera`` (k3,
+    information criterion that the star count supports; ``free_principal=False`` keeps
+    ``camera``'s principal point in every one of them. One frame cannot tell a shifted
+    principal point from a turned camera (both move every star alike to first order), so
+    the solver's per-frame fit keeps it: its attitude is then always that of the camera
+    it was given, frame after frame. The rest of ``camera`` (k3,
     parity, size) is kept. Least squares on pixel residuals (``scipy.optimize``) with weak
     priors against the near-degenerate directions.
 
@@ -199,7 +204,12 @@ def fit_camera_model(
             return n_obs * math.log(max(rss, 1e-12) / n_obs) + k * math.log(n_obs)
 
         best, best_bic = None, math.inf
-        for t, n_min in _AUTO_MODELS:
+        models: list[tuple[tuple[str, ...], int]] = []
+        for t, n in _AUTO_MODELS:
+            t = t if free_principal else tuple(x for x in t if x != "principal")
+            if all(t != seen for seen, _ in models):  # a model once, at its first count
+                models.append((t, n))
+        for t, n_min in models:
             if n_stars < n_min + need_extra // 2:
                 break
             f = _fit_model(data, camera, t, q0)

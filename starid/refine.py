@@ -7,9 +7,12 @@ camera. :class:`Refinement` then lets the frame speak (issue 14, items 2 and 3):
    the degrees of freedom the fit used and for the match radius that truncated them
    (:func:`noise_from_residuals`) — and the match radius follows it, so a frame 3× noisier
    than ``centroid_sigma_px`` still associates its stars;
-2. with an uncertain camera, focal length, principal point, pixel aspect and OpenCV
-   distortion are fitted to the matched stars (:func:`starid.calibrate.fit_camera_model`),
-   and every detection is associated again through the fitted camera;
+2. with an uncertain camera, focal length, pixel aspect and OpenCV distortion are fitted
+   to the matched stars (:func:`starid.calibrate.fit_camera_model`), and every detection
+   is associated again through the fitted camera. The principal point stays the given
+   camera's: one frame cannot tell it from the attitude, and a per-frame principal point
+   would turn the reported camera frame by up to 0.16° from frame to frame (measured on
+   the real frames); ``adfusion calibrate`` fits it over many frames;
 3. pairs whose residual the fit rejects (beyond 3.5 robust σ: a neighbour taken for the
    star, a blend) leave before the final fit;
 4. the final Wahba fit's covariance uses the estimated noise (shrunk towards the
@@ -161,7 +164,7 @@ class Refinement:
         if terms == "auto" and len(det) >= 4:
             try:
                 fit = fit_camera_model([(xy_all[det], self.vectors[cat])], cam0, terms,
-                                       q_cam_icrs=[q])
+                                       q_cam_icrs=[q], free_principal=False)
             except ValueError:
                 return sol
             cam = fit.camera
