@@ -28,7 +28,6 @@ from adfusion.starid import rotations as rot
 from adfusion.starid.attitude import wahba
 from adfusion.starid.camera import Camera
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 
 __all__ = ["CAMERA_TERMS", "CameraFit", "CameraModelFit", "fit_camera", "fit_camera_model"]
 
@@ -91,6 +90,8 @@ def _fit_one(xy: NDArray, r: NDArray, cam0: Camera, fit_focal: bool, fit_k1: boo
         return np.cross(pred, b).ravel()  # ≈ angle × axis, smooth near the optimum
 
     p0 = np.zeros(3 + int(fit_focal) + int(fit_k1))
+    from scipy.optimize import least_squares  # ~0.25 s: on first fit, not import
+
     sol = least_squares(residuals, p0, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15)
     cam = make_camera(sol.x)
     q = rot.normalize(rot.multiply(rot.exp_map(sol.x[:3]), q0))
@@ -303,6 +304,8 @@ def _fit_model(data: list[tuple[NDArray, NDArray]], cam0: Camera, terms: tuple[s
         return ((f[1:] - f[0]) / h[:, None]).T
 
     p0 = np.zeros(pos)
+    from scipy.optimize import least_squares  # ~0.25 s: on first fit, not import
+
     sol = least_squares(residuals, p0, jac=jacobian, method="lm", xtol=1e-12, ftol=1e-12,
                         gtol=1e-12, max_nfev=100)
     fx, fy, cx, cy, d = (v[0] for v in intrinsics(sol.x[None]))

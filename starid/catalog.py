@@ -50,8 +50,6 @@ from adfusion.starid.catalog_files import check_file, default_hip2_path, load_hi
 from adfusion.starid.photometry import combined_magnitude, estimate_v_from_hp
 from adfusion.starid.rotations import radec_to_vector, vector_to_radec
 from numpy.typing import ArrayLike, NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 __all__ = [
@@ -678,6 +676,9 @@ def _merge_arrays(
     i, j, _ = cat.pairs_within(sep_rad)
     if len(i) == 0:
         return dict(arrays)
+    from scipy.sparse import coo_matrix  # here, not at import: ~0.1 s of every start-up
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(len(i), dtype=np.int8), (i, j)), shape=(n, n))
     n_obj, label = connected_components(graph, directed=False)
     index = np.arange(n)

@@ -37,7 +37,6 @@ Example:
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import math
 import time
@@ -46,8 +45,9 @@ from dataclasses import replace
 import numpy as np
 from adfusion.starid import kernels
 from adfusion.starid import rotations as rot
+from adfusion.starid.bleif_bridge import BleifBridge
 from adfusion.starid.camera import Camera
-from adfusion.starid.index import PatternIndex
+from adfusion.starid.index import PatternIndex, catalog_cache_tag
 from adfusion.starid.lost_in_space import LostInSpace, PairWindows, Search
 from adfusion.starid.nstar import Pattern, match_faithful, match_indexed
 from adfusion.starid.refine import Refinement
@@ -78,7 +78,7 @@ _one_to_one, _keeps_pattern, _rotation_from_pairs = one_to_one, keeps_pattern, r
 _distinct = distinct_candidates
 
 
-class Solver(LostInSpace, Tracking, TriadBridge, Verification, Refinement):
+class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refinement):
     """Lost-in-space identification against a catalogue for one camera.
 
     Args:
@@ -146,15 +146,18 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification, Refinement):
         cache: bool = True,
         method: str = "nstar",
         triad_params=None,
+        bleif_params=None,
         max_tracking_cone_deg: float = 3.0,
         max_fix_sigma_px: float = 5.0,
         p_false_max_tracking: float = 1e-4,
         whole_streak_px: float = 20.0,
     ) -> None:
-        if method not in ("nstar", "triad"):
-            raise ValueError(f"method must be 'nstar' or 'triad', got {method!r}")
+        if method not in ("nstar", "triad", "bleif"):
+            raise ValueError(f"method must be 'nstar', 'triad' or 'bleif', got {method!r}")
         self.method = method
         self.triad_params = triad_params
+        self.bleif_params = bleif_params
+        self._bleif_patterns = None
         self.max_tracking_cone_deg = float(max_tracking_cone_deg)
         self.max_fix_sigma_px = float(max_fix_sigma_px)
         self.p_false_max_tracking = float(p_false_max_tracking)
@@ -219,7 +222,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification, Refinement):
         # the index must reach across the widest field any focal guess gives
         widest = camera.scaled(min(self._focal_scales())) if self._fov_uncertain else camera
         self.max_sep_rad = float(np.radians(widest.diagonal_fov_deg) + 2 * self.tolerance_rad)
-        tag = _catalog_tag(self.vectors) if cache else None
+        # keyed by the star set, not the epoch: a later epoch reuses the index (index.py)
+        tag = catalog_cache_tag(catalog) if cache else None
         t0 = time.perf_counter()
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
@@ -259,8 +263,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification, Refinement):
                 return Solution(False, fallback_note + "too few detections for lost-in-space",
                                 mode="tracking", time_s=time.perf_counter() - t0,
                                 n_detections=len(xy))
-        if self.method == "triad":
-            sol = self._refine(self._solve_triad(xy), self._all_xy(detections, xy))
+        if self.method in ("triad", "bleif"):
+            sol = self._solve_triad(xy) if self.method == "triad" else self._solve_bleif(xy)
+            sol = self._refine(sol, self._all_xy(detections, xy))
             return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                            patterns_tried=1)
         cams = [self.camera.scaled(k) if k != 1.0 else self.camera
@@ -466,10 +471,6 @@ class Solver(LostInSpace, Tracking, TriadBridge, Verification, Refinement):
             covariance=c.covariance, p_false=c.p_false, path=path, candidates=cands,
             residuals_rad=c.residuals_rad, camera=c.camera,
         )
-
-
-def _catalog_tag(vectors: NDArray) -> str:
-    return hashlib.sha1(np.ascontiguousarray(vectors).tobytes()).hexdigest()
 
 
 def _replace(sol: Solution, **kw) -> Solution:
