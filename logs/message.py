@@ -24,8 +24,9 @@ class Message:
         payload: ``numpy.ndarray`` for images (grey, uint8 or uint16), a ``dict`` otherwise.
             Quaternions inside payloads are Hamilton scalar-first ``[w, x, y, z]``.
         raw: the encoded bytes the payload was decoded from (MCAP JSON channels: JSON text;
-            ``foxglove.RawImage`` channels: the protobuf message), so that a replay can copy
-            inputs to its output without encoding them again.
+            ``foxglove.RawImage`` and ``foxglove.PoseInFrame`` channels: the protobuf
+            message), so that a replay can copy inputs to its output without encoding them
+            again.
     """
 
     t_s: float

@@ -124,6 +124,9 @@ class McapLogReader:
         problem: :class:`ReadProblem` or ``None`` for an intact file.
         channels: channel id → :class:`ChannelInfo` (those seen before any break).
         metadata: metadata name → dict (values decoded as written by ``LogWriter``).
+        clock_offset_ns: what ``LogWriter(start_utc=...)`` added to every log time (0 without
+            a ``clock`` metadata record); message times are run seconds, this subtracted.
+        start_utc: the run's start (ISO 8601 UTC text), ``None`` if the log does not say.
         attachments: attachment name → ``(media_type, data)``.
         message_count: messages readable (all topics, before the break).
     """
@@ -146,6 +149,9 @@ class McapLogReader:
         self._decoders: dict[int, Callable[[bytes], Any] | None] = {}
         self._last_good_ns: int | None = None
         self._scan()
+        clock = self.metadata.get("clock", {})
+        self.clock_offset_ns = int(clock.get("offset_ns", 0))
+        self.start_utc: str | None = clock.get("start_utc")
         if self.problem is not None and warn:
             warnings.warn(str(self.problem), McapReadWarning, stacklevel=2)
 
@@ -335,8 +341,9 @@ class McapLogReader:
                           stacklevel=3)
             return None
         # JSON and raw frames keep their bytes, so that a replay copies them as read
-        keep = decoder is json.loads or channel.schema_name == "foxglove.RawImage"
-        return Message(record.log_time / 1e9, topic, payload, record.data if keep else None)
+        keep = decoder is json.loads or channel.schema_name in _KEEP_RAW
+        return Message((record.log_time - self.clock_offset_ns) / 1e9, topic, payload,
+                       record.data if keep else None)
 
     # ------------------------------------------------------------------ pass 2: merge
     def _chunk_messages(self, data: bytes | memoryview) -> list[McapMessage]:
@@ -432,6 +439,9 @@ class McapLogReader:
             return None
         return json.loads(self.attachments[name][1])
 
+
+# protobuf messages whose bytes a replay copies to its output as read
+_KEEP_RAW = frozenset({"foxglove.RawImage", "foxglove.PoseInFrame"})
 
 # Chunks read ahead of the one being merged (each ~1 MB of records).
 _PREFETCH = 2

@@ -40,10 +40,13 @@ def _object(title: str, properties: dict[str, Any], required: list[str]) -> dict
 
 
 _QUAT = "Hamilton quaternion, scalar first [w, x, y, z]"
+_T = {"type": "number", "description": "run time, seconds from the start (log times are UTC "
+                                        "when the start is known: see the clock metadata)"}
 
 STARID_SOLUTION = _object(
     "adfusion.StarIdSolution",
     {
+        "t": _T,
         "ok": {"type": "boolean", "description": "a unique, accepted identification"},
         "mode": {"type": ["string", "null"], "description": "'lost-in-space' or 'tracking'"},
         "q_cam_icrs": {
@@ -56,35 +59,88 @@ STARID_SOLUTION = _object(
             {"type": "array", "items": {"type": "integer"}, "minItems": 2, "maxItems": 2},
         ),
         "matching_counter": {"type": "integer", "description": "distinct candidate patterns"},
+        "p_false": {**_NUM, "description": "false-match probability of the identification"},
         "cone_deg": {**_NUM, "description": "search cone half-angle (tracking), degrees"},
         "reason": {"type": "string", "description": "why not ok ('' when ok)"},
         "time_ms": {**_NUM, "description": "solve time, milliseconds"},
+        "fix_accepted": {"type": "boolean", "description": "the filter took the fix"},
+        "n_detections": {"type": "integer", "description": "stars detected in the frame"},
+        "residuals_arcsec": _vec(None, "per match: angle between the detected star and the "
+                                       "catalogue star at the solution, arcsec"),
+        "camera": {"type": "string", "description": "camera name (several-camera logs)"},
     },
     ["ok", "mode", "q_cam_icrs", "matches", "matching_counter", "cone_deg", "reason", "time_ms"],
 )
 
 GYRO = _object(
     "adfusion.Gyro",
-    {"omega": _vec(3, "measured body rate, rad/s, body frame")},
+    {"t": _T, "omega": _vec(3, "measured body rate, rad/s, body frame")},
     ["omega"],
 )
 
 MAG = _object(
     "adfusion.Magnetometer",
-    {"b_body": _vec(3, "measured magnetic field, nT, body frame")},
+    {"t": _T, "b_body": _vec(3, "measured magnetic field, nT, body frame"),
+     "b_ref_icrs": _vec(3, "reference (model) field, nT, ICRS frame (optional)")},
     ["b_body"],
 )
+
+_REJECTED = _vec(None, "inputs not used, each with why", {
+    "type": "object",
+    "properties": {"input": {"type": "string", "description": "'gyro', 'mag', 'star fix', "
+                                                               "'camera' or 'time'"},
+                   "reason": {"type": "string"}},
+    "required": ["input", "reason"]})
 
 FILTER_STATE = _object(
     "adfusion.FilterState",
     {
         "t": {"type": "number", "description": "state time, seconds"},
         "q_body_icrs": _vec(4, _QUAT + "; rotates ICRS vectors into the body frame"),
-        "bias": _vec(3, "gyro bias estimate, rad/s, body frame"),
-        "cov_diag": _vec(None, "covariance diagonal: attitude error (rad^2), bias ((rad/s)^2)"),
-        "nis": {**_NUM, "description": "normalised innovation squared of the last update"},
+        "bias": {**_vec(3, "gyro bias estimate, rad/s, body frame (null: no gyro)"),
+                 "type": ["array", "null"]},
+        "omega": _vec(3, "body rate estimate, rad/s, body frame (video-only filter)"),
+        "cov_diag": _vec(None, "covariance diagonal: attitude error (rad^2, body axes), then "
+                               "bias or rate ((rad/s)^2)"),
+        "nis": {**_NUM, "description": "normalised innovation squared of this frame's star "
+                                       "fix (3 dof; null: no fix was tested)"},
+        "rejected": _REJECTED,
+        "n_stars": {"type": "integer", "description": "stars used (smoother)"},
+        "chi2_stars": {**_NUM, "description": "star residual chi-square (smoother)"},
+        "downweighted": _vec(None, "catalogue ids down-weighted as outliers (smoother)",
+                             {"type": "integer"}),
     },
     ["t", "q_body_icrs", "bias", "cov_diag", "nis"],
+)
+
+ATTITUDE_DEG = _object(
+    "adfusion.AttitudeDeg",
+    {
+        "t": _T,
+        "ra_deg": {"type": "number", "description": "right ascension of body +z, ICRS, deg"},
+        "dec_deg": {"type": "number", "description": "declination of body +z, ICRS, deg"},
+        "roll_deg": {"type": "number", "description": "roll about body +z, deg, in [0, 360): "
+                                                      "0 when body -y points north "
+                                                      "(rotations.radec_roll_from_q_cam_icrs "
+                                                      "of q_body_icrs)"},
+        "sigma_deg": _vec(3, "1σ attitude error about body x, y (cross-boresight) and z "
+                             "(roll), deg"),
+        "mode": {"type": ["string", "null"], "description": "star-ID mode of the frame"},
+        "n_stars": {"type": "integer", "description": "stars matched in the frame"},
+    },
+    ["t", "ra_deg", "dec_deg", "roll_deg", "sigma_deg"],
+)
+
+ATTITUDE_ERROR = _object(
+    "adfusion.AttitudeError",
+    {
+        "t": _T,
+        "error_deg": _vec(3, "estimate ⊗ truth⁻¹ as a rotation vector about body x, y "
+                             "(cross-boresight) and z (roll), deg"),
+        "angle_deg": {"type": "number", "description": "total error angle, deg"},
+        "sigma3_deg": _vec(3, "the filter's 3σ about body x, y, z, deg"),
+    },
+    ["t", "error_deg", "angle_deg", "sigma3_deg"],
 )
 
 TRUTH_STATE = _object(
@@ -98,6 +154,13 @@ TRUTH_STATE = _object(
     ["t", "q_body_icrs"],
 )
 
+CENTROIDS = _object(
+    "adfusion.Centroids",
+    {"t": _T, "xy": _vec(None, "star centroids, pixels (0-based centres, x right, y down)",
+                         _vec(None, "x, y[, flux]"))},
+    ["xy"],
+)
+
 GENERIC = {"$schema": DIALECT, "title": "adfusion.Json", "type": "object"}
 
 JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
@@ -105,7 +168,10 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/imu/gyro": ("adfusion.Gyro", GYRO),
     "/mag": ("adfusion.Magnetometer", MAG),
     "/estimate/state": ("adfusion.FilterState", FILTER_STATE),
+    "/estimate/attitude": ("adfusion.AttitudeDeg", ATTITUDE_DEG),
+    "/estimate/error": ("adfusion.AttitudeError", ATTITUDE_ERROR),
     "/smoothed/state": ("adfusion.FilterState", FILTER_STATE),
     "/truth/state": ("adfusion.TruthState", TRUTH_STATE),
+    "/camera/centroids": ("adfusion.Centroids", CENTROIDS),
 }
 """Topic → (schema name, JSON schema) for the JSON topics of DESIGN.md."""

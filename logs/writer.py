@@ -55,6 +55,41 @@ _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, None: CompressionType.NONE}
 
 
+def utc_ns(when: Any) -> int:
+    """Nanoseconds since 1970-01-01 UTC of an ISO 8601 text or a timezone-aware datetime.
+
+    Example:
+        >>> utc_ns("1970-01-01T00:00:01.5Z")
+        1500000000
+    """
+    import datetime as dt
+
+    if isinstance(when, str):
+        try:
+            when = dt.datetime.fromisoformat(when.replace("Z", "+00:00"))
+        except ValueError:
+            raise ValueError(f"start time {when!r}: give a UTC time such as "
+                             "1995-11-07T08:07:00Z") from None
+    if not isinstance(when, dt.datetime) or when.tzinfo is None:
+        raise ValueError(f"start time {when!r}: give a UTC time such as 1995-11-07T08:07:00Z")
+    delta = when - dt.datetime(1970, 1, 1, tzinfo=dt.UTC)
+    return (delta.days * 86400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+
+
+def utc_iso(when: Any) -> str:
+    """ISO 8601 UTC text (``…Z``, nanoseconds dropped to microseconds) of ``when``.
+
+    Example:
+        >>> utc_iso("1995-11-07T08:07:00+00:00")
+        '1995-11-07T08:07:00.000000Z'
+    """
+    import datetime as dt
+
+    ns = utc_ns(when)
+    t = dt.datetime(1970, 1, 1, tzinfo=dt.UTC) + dt.timedelta(microseconds=ns // 1000)
+    return t.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
 class _UnbufferedFile:
     """Write-through file for ``mcap.Writer``: every ``write`` reaches the OS at once.
 
@@ -93,6 +128,11 @@ class LogWriter:
         chunk_size: uncompressed bytes per chunk; a crash loses at most the chunk in progress.
         compression: ``"zstd"`` (default), ``"lz4"`` or ``"none"``.
         fsync: also ``fsync`` after every chunk (survives power loss, not just a killed process).
+        start_utc: UTC time of run time 0 (ISO 8601 text or a timezone-aware ``datetime``).
+            Given, the file's log times are UTC (nanoseconds since 1970) while the API keeps
+            run seconds: every time is stored ``+ clock_offset_ns``, recorded in the
+            ``clock`` metadata (``start_utc``, ``offset_ns``), which
+            :class:`~adfusion.logs.reader.McapLogReader` subtracts again.
 
     Topics are registered on first use: the Foxglove ones by the typed methods, the JSON ones by
     :meth:`write_json` with the schema from :data:`logs.schemas.JSON_SCHEMAS` (or one given to
@@ -101,8 +141,9 @@ class LogWriter:
 
     def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = 1024 * 1024,
                  compression: Literal["zstd", "lz4", "none"] | None = "zstd",
-                 fsync: bool = False) -> None:
+                 fsync: bool = False, start_utc: Any = None) -> None:
         self.path = os.fspath(path)
+        self.clock_offset_ns = 0 if start_utc is None else utc_ns(start_utc)
         self._file = _UnbufferedFile(self.path)
         self._fsync = fsync
         self._writer = Writer(
@@ -112,6 +153,9 @@ class LogWriter:
             index_types=IndexType.ALL,
         )
         self._writer.start(profile="", library="adfusion logs")
+        if start_utc is not None:
+            self._writer.add_metadata("clock", encode_metadata({
+                "start_utc": utc_iso(start_utc), "offset_ns": self.clock_offset_ns}))
         self._channels: dict[str, tuple[int, str]] = {}
         self._json_schemas: dict[str, tuple[str, dict[str, Any]]] = dict(JSON_SCHEMAS)
         self._proto_schemas: dict[str, int] = {}
@@ -142,9 +186,8 @@ class LogWriter:
         if self._fsync:
             self._file.fsync()
 
-    @staticmethod
-    def _ns(t_s: float) -> int:
-        t_ns = round(float(t_s) * 1e9)
+    def _ns(self, t_s: float) -> int:
+        t_ns = round(float(t_s) * 1e9) + self.clock_offset_ns
         if t_ns < 0:
             raise ValueError(f"MCAP times are unsigned: t_s={t_s} < 0")
         return t_ns

@@ -64,10 +64,12 @@ __all__ = [
     "KINDS",
     "Event",
     "FrameTruth",
+    "MultiHeadScenario",
     "Scenario",
     "ballistic_position",
     "ecef_to_geodetic",
     "leo",
+    "leo_three_heads",
     "oedipus",
 ]
 
@@ -560,8 +562,12 @@ def leo(
     tracker_tilt_deg: float = 30.0,
     exposure_s: float = 0.1,
     mag_limit: float = 6.0,
+    q_body_cam: ArrayLike | None = None,
 ) -> Scenario:
     """An Earth-pointing satellite in a circular orbit with a star tracker.
+
+    ``q_body_cam`` replaces the tracker's mounting described below (see
+    :func:`leo_three_heads`).
 
     Physical model (also in ``Scenario.config``):
 
@@ -598,7 +604,8 @@ def leo(
     tilt = np.radians(tracker_tilt_deg)
     z_c = np.array([0.0, -np.sin(tilt), -np.cos(tilt)])
     x_c = np.array([1.0, 0.0, 0.0])
-    q_body_cam = rot.from_matrix(np.column_stack([x_c, np.cross(z_c, x_c), z_c]))
+    if q_body_cam is None:
+        q_body_cam = rot.from_matrix(np.column_stack([x_c, np.cross(z_c, x_c), z_c]))
     catalog = Catalog.hipparcos(mag_limit=mag_limit, epoch=2025.4)
     sensor = SensorModel(psf_sigma_px=1.2, noise="gaussian")
     gyro_kw = {"arw_rad_sqrt_s": 5e-5, "rrw_rad_s_sqrt_s": 1e-7,
@@ -634,3 +641,73 @@ def leo(
         start_utc=start, duration_s=duration_s, seed=seed, render=render, gyro_hz=10.0,
         mag_hz=2.0, fps=4.0, exposure_s=exposure_s, gyro_kw=gyro_kw, mag_kw=mag_kw,
         truth_fn=truth_fn, position_fn=position_fn, config=config)
+
+
+# --------------------------------------------------------------------------------------------
+# several star cameras on one body
+
+
+class MultiHeadScenario:
+    """Several star cameras on one body: ``heads`` are scenarios of the same flight (same
+    truth, seed and sensors) differing in camera and mounting. :meth:`events` yields the
+    first head's truth, gyro and magnetometer samples and every head's frames, each frame's
+    data carrying ``head`` (its index). ``camera``, ``q_body_cam`` and ``start_utc`` are the
+    first head's; ``config`` is its configuration plus ``heads`` (each head's camera and
+    ``q_body_cam``).
+
+    >>> sc = leo_three_heads(duration_s=0.5, render=False)
+    >>> sorted({e.data.get("head") for e in sc.events() if e.kind == "frame"})
+    [0, 1, 2]
+    """
+
+    def __init__(self, heads: list[Scenario]) -> None:
+        if not heads:
+            raise ValueError("a multi-head scenario needs at least one head")
+        self.heads = list(heads)
+        first = heads[0]
+        self.name = first.name + f"-{len(heads)}heads"
+        self.camera, self.q_body_cam, self.start_utc = first.camera, first.q_body_cam, \
+            first.start_utc
+        self.t_frame = np.concatenate([h.t_frame for h in heads])
+        self.config = {**first.config, "scenario": self.name, "heads": [
+            {"camera": h.config["camera"], "q_body_cam": h.config["q_body_cam"]}
+            for h in heads]}
+
+    def events(self) -> Iterator[Event]:
+        def tagged(k: int, h: Scenario) -> Iterator[tuple[int, int, Event]]:
+            for e in h.events():
+                if e.kind == "frame":
+                    e.data["head"] = k
+                    yield (e.t_ns, 1, e)
+                elif k == 0:
+                    yield (e.t_ns, 0, e)
+
+        import heapq
+
+        merged = heapq.merge(*(tagged(k, h) for k, h in enumerate(self.heads)),
+                             key=lambda x: (x[0], x[1]))
+        for _, _, e in merged:
+            yield e
+
+
+def leo_three_heads(duration_s: float = 30.0, seed: int = 0, render: bool = True,
+                    **leo_kw: Any) -> MultiHeadScenario:
+    """The :func:`leo` satellite with three star-tracker heads 90° apart, as on satellites
+    with three tracker heads: boresights along the edges of a cube corner pointed at the
+    zenith (each 54.7° from it, 35.3° above the local horizontal, far from the Earth's
+    limb 22° below it), so every head's poorly observed roll is another head's well
+    observed cross-boresight axis.
+
+    >>> sc = leo_three_heads(duration_s=1.0, render=False)
+    >>> len(sc.heads), len(sc.t_frame)
+    (3, 12)
+    """
+    heads = []
+    for k in range(3):
+        a = 2 * np.pi * k / 3
+        z_c = np.array([np.sqrt(2 / 3) * np.cos(a), np.sqrt(2 / 3) * np.sin(a), -np.sqrt(1 / 3)])
+        x_c = np.cross([0.0, 0.0, 1.0], z_c)
+        x_c /= np.linalg.norm(x_c)
+        q = rot.from_matrix(np.column_stack([x_c, np.cross(z_c, x_c), z_c]))
+        heads.append(leo(duration_s, seed, render, q_body_cam=q, **leo_kw))
+    return MultiHeadScenario(heads)

@@ -109,6 +109,17 @@ def write_full_log(path: Path, n_frames: int = 6, chunk_size: int = 1024 * 1024
             truth = {"t": t, "q_body_icrs": _q(i + 1).tolist(), "omega": [0.0, 0.0, 1.0]}
             log.write_json("/truth/state", t, truth)
             written.append((t, "/truth/state", truth))
+            att = {"t": t, "ra_deg": 10.0 * i, "dec_deg": -5.0, "roll_deg": 270.0,
+                   "sigma_deg": [1e-3, 1e-3, 5e-3], "mode": "tracking", "n_stars": 7}
+            log.write_json("/estimate/attitude", t, att)
+            written.append((t, "/estimate/attitude", att))
+            err = {"t": t, "error_deg": [1e-3, -2e-3, 4e-3], "angle_deg": 4.6e-3,
+                   "sigma3_deg": [3e-3, 3e-3, 1.5e-2]}
+            log.write_json("/estimate/error", t, err)
+            written.append((t, "/estimate/error", err))
+            cen = {"t": t, "xy": [[10.5, 20.25], [30.0, 40.0]]}
+            log.write_json("/camera/centroids", t, cen)
+            written.append((t, "/camera/centroids", cen))
             log.write_attitude("/estimate/pose", t, _q(i))
             q_icrs_body = _q(i) * np.array([1, -1, -1, -1])
             written.append((t, "/estimate/pose", q_icrs_body))

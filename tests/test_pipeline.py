@@ -101,7 +101,9 @@ def test_cli_demo_and_report(tmp_path, capsys):
     assert "identified" in out and "attitude error vs truth" in out
     pngs = sorted(p.name for p in (tmp_path / "report").glob("*.png"))
     assert pngs == ["attitude_error.png", "bias.png", "boresight_track.png", "nis.png",
-                    "starid_outcome.png"]
+                    "residuals.png", "solve_time.png", "stars.png"]
+    page = (tmp_path / "report" / "report.html").read_text()
+    assert page.count("data:image/png;base64,") == 7
     assert "attitude error" in (tmp_path / "report" / "summary.md").read_text()
     names = {m.topic for m in McapLogReader(tmp_path / "replay.mcap")}
     assert {"/camera/image", "/camera/annotations", "/starid/solution", "/estimate/state",

@@ -6,7 +6,7 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 Example:
     >>> from adfusion.app.cli import build_parser
     >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:5]
-    ['bench', 'cache', 'calibrate', 'catalog', 'demo']
+    ['acs', 'bench', 'cache', 'calibrate', 'catalog']
 """
 
 from __future__ import annotations
@@ -99,32 +99,89 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     cb.set_defaults(func=cmd_calibrate)
 
     sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo, "
-                        "tubsat: Bleif's night pass to Berlin)")
-    sm.add_argument("scenario", choices=["oedipus", "leo", "tubsat"])
+                        "leo3: three star-tracker heads 90° apart, tubsat: Bleif's night "
+                        "pass to Berlin)")
+    sm.add_argument("scenario", choices=["oedipus", "leo", "leo3", "tubsat"])
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
     sm.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     sm.add_argument("--seed", type=int, default=0)
     sm.add_argument("--no-render", action="store_true",
                     help="write star centroids instead of rendered images (fast)")
+    sm.add_argument("--ros2", metavar="DIR", help="also write the flight as a ROS 2 bag "
+                    "(rosbag2 folder, MCAP storage; Image + CameraInfo + Imu + "
+                    "MagneticField) with rosbags")
     sm.set_defaults(func=cmd_simulate)
 
-    rp = sub.add_parser("replay", help="detect → identify → filter a log, write the results")
-    rp.add_argument("input", help="input .mcap (ours, or with the same topics)")
+    rp = sub.add_parser(
+        "replay", help="detect → identify → filter a log, a ROS 2 bag, images or a video",
+        description="Replay INPUT — one of our MCAP logs, a ROS 2 bag in MCAP (a rosbag2 "
+                    "folder or its .mcap), a folder of images, or a video file — through "
+                    "detection, identification and the filter into an MCAP log (with "
+                    "OUT.layout.json for Foxglove beside it).")
+    rp.add_argument("input", help="MCAP log, ROS 2 bag, image folder or video file")
     rp.add_argument("-o", "--output", required=True, help="output .mcap")
-    rp.add_argument("--no-gyro", action="store_true", help="ignore the gyro")
-    rp.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
-    rp.add_argument("--mag-limit", type=float, default=None,
-                    help="catalogue limit (default: the log's, else 5.5)")
-    rp.add_argument("--compression", choices=["auto", "lz4", "zstd", "none"], default="auto",
-                    help="output chunk compression (default auto: none for logs with camera "
-                         "images — noisy video gains 2 %% — else lz4; zstd: smallest)")
-    rp.add_argument("--json", action="store_true", help="print the summary as JSON")
-    rp.add_argument("--smooth", action="store_true",
-                    help="also smooth the whole log (GTSAM) into /smoothed/state and "
-                         "/smoothed/pose")
-    rp.add_argument("--smoother", choices=["batch", "isam2"], default="batch",
-                    help="with --smooth: Levenberg–Marquardt batch (default) or iSAM2")
+    g = rp.add_argument_group("input")
+    g.add_argument("--imu", metavar="FILE", help="gyro/magnetometer samples: CSV (t_s, "
+                   "gyro_x..z rad/s, mag_x..z nT) or a PX4 ULog (.ulg)")
+    g.add_argument("--camera", metavar="FILE", help="camera model: OpenCV camera YAML, ROS "
+                   "camera_info YAML, or camera.json")
+    g.add_argument("--fov", type=float, metavar="DEG", help="horizontal field of view (a "
+                   "pinhole camera of the frame size) when there is no camera model")
+    g.add_argument("--fps", type=float, help="frame rate of a folder or video (frame i at "
+                   "i/fps s)")
+    g.add_argument("--timestamps", metavar="CSV", help="frame times of a folder: CSV with "
+                   "columns filename,t_s")
+    g.add_argument("--start-utc", metavar="TIME", help="UTC time of t = 0 (ISO 8601, e.g. "
+                   "1995-11-07T08:07:00Z): log times in UTC")
+    g.add_argument("--mount", metavar="W,X,Y,Z", help="camera mounting q_body_cam (rotates "
+                   "camera vectors into the body frame), scalar first")
+    g.add_argument("--exposure", type=float, metavar="S", help="camera exposure, seconds "
+                   "(tracking models the motion smear; default: the log's)")
+    g.add_argument("--gyro-arw", type=float, metavar="RAD/√S", help="gyro angle random walk "
+                   "(default: the log's, else 1e-4)")
+    g.add_argument("--gyro-rrw", type=float, metavar="RAD/S/√S", help="gyro rate random walk"
+                   " (default: the log's, else 1e-6)")
+    g.add_argument("--heads", metavar="K,K", help="cameras of a several-camera log to fuse "
+                   "(default all; e.g. 0 for the first alone)")
+    g.add_argument("--image-topic", help="ROS 2 bag: the image topic (default: by type)")
+    g.add_argument("--imu-topic", help="ROS 2 bag: the Imu topic (default: by type)")
+    g.add_argument("--mag-topic", help="ROS 2 bag: the MagneticField topic (default: by type)")
+    g = rp.add_argument_group("detection and identification")
+    g.add_argument("--sigma", type=float, help="detection threshold, noise sigmas (default 5)")
+    g.add_argument("--fov-error", type=float, default=0.0, metavar="DEG",
+                   help="± uncertainty of the field of view for lost-in-space (default 0)")
+    g.add_argument("--mag-limit", type=float, default=None,
+                   help="catalogue limit, V (default: the log's, else 5.5)")
+    g.add_argument("--epoch", type=float, help="catalogue epoch, Julian year (default: the "
+                   "log's, else 2000)")
+    g = rp.add_argument_group("filter and output")
+    g.add_argument("--no-gyro", action="store_true", help="ignore the gyro (video only: the "
+                   "filter estimates the rate)")
+    g.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
+    g.add_argument("--compression", choices=["auto", "lz4", "zstd", "none"], default="auto",
+                   help="output chunk compression (default auto: none for logs with camera "
+                        "images — noisy video gains 2 %% — else lz4; zstd: smallest)")
+    g.add_argument("--json", action="store_true", help="print the summary as JSON")
+    g.add_argument("--smooth", action="store_true",
+                   help="also smooth the whole log (GTSAM) into /smoothed/state and "
+                        "/smoothed/pose")
+    g.add_argument("--smoother", choices=["batch", "isam2"], default="batch",
+                   help="with --smooth: Levenberg–Marquardt batch (default) or iSAM2")
     rp.set_defaults(func=cmd_replay)
+
+    ex = sub.add_parser("export", help="flight-dynamics products of a replayed log (AEM, CSV)")
+    ex.add_argument("log", help="a replayed .mcap")
+    ex.add_argument("--aem", metavar="FILE", help="CCSDS Attitude Ephemeris Message (KVN)")
+    ex.add_argument("--csv", metavar="FILE", help="CSV: UTC, quaternion, RA/Dec/roll, 1σ, "
+                    "mode, stars")
+    ex.add_argument("--smoothed", action="store_true", help="export /smoothed/state instead "
+                    "of the filter's /estimate/state")
+    ex.set_defaults(func=cmd_export)
+
+    tp = sub.add_parser("topics", help="the log topics: schema, fields, units, frame")
+    tp.add_argument("--markdown", action="store_true", help="as a Markdown table")
+    tp.set_defaults(func=lambda a: __import__("adfusion.logs.topics", fromlist=["main"]).main(
+        ["--markdown"] if a.markdown else []))
 
     rq = sub.add_parser("report", help="plots and a summary of a replayed log")
     rq.add_argument("log", help="a replayed .mcap")
@@ -150,6 +207,20 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
         bench_sweep.add_arguments(sw)
         sw.set_defaults(func=bench_sweep.cli)
 
+    a = sub.add_parser("acs", help="closed-loop attitude control on Basilisk, camera in the "
+                       "loop (needs the bsk extra)")
+    a.add_argument("scenario", help="leo, slew, outage or misaligned")
+    a.add_argument("-o", "--output", required=True, help="MCAP log; the report is written "
+                   "beside it (.report.md, .report.json, .png)")
+    a.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
+    a.add_argument("--duration", type=float, default=None, help="seconds (default: the "
+                   "scenario's, 600)")
+    a.add_argument("--images", choices=("preview", "all"), default="preview",
+                   help="log every frame's image, or one in 40 with every frame's centroids "
+                   "(default preview)")
+    a.add_argument("--json", action="store_true", help="print the report as JSON")
+    a.set_defaults(func=cmd_acs)
+
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
     c.set_defaults(func=cmd_catalog)
@@ -162,12 +233,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as e:
-        print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
-        return 2
     except BrokenPipeError:  # output piped into `head`: not an error
         sys.stderr.close()
         return 0
+    except (ValueError, OSError) as e:
+        print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
+        return 2
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
@@ -603,7 +674,8 @@ def _julian_year_now() -> float:
 def _scenario(name: str, duration: float, seed: int, render: bool):
     from adfusion.sensors import scenarios
 
-    return getattr(scenarios, name)(duration_s=duration, seed=seed, render=render)
+    make = scenarios.leo_three_heads if name == "leo3" else getattr(scenarios, name)
+    return make(duration_s=duration, seed=seed, render=render)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -611,6 +683,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     if not args.duration > 0:
         raise ValueError("--duration must be positive")
+    if args.ros2 and args.no_render:
+        raise ValueError("--ros2 writes camera images: drop --no-render")
     if args.scenario == "tubsat":  # its own timeline: contact at 23:06:20 to the target
         from adfusion.app.tubsat_log import simulate_tubsat
 
@@ -624,24 +698,74 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                  args.output, progress=sys.stderr.isatty())
     print(f"{args.scenario}: {n} frames, {args.duration:g} s, seed {args.seed} → "
           f"{args.output} ({time.perf_counter() - t0:.1f} s)")
+    if args.ros2:
+        from adfusion.app.ros2bag import write_ros2_bag
+
+        counts = write_ros2_bag(args.output, args.ros2)
+        print(f"ROS 2 bag → {args.ros2}: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     return 0
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from adfusion.app.replay import replay
+    from adfusion.app.replay import ReplayOptions, replay
 
-    s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
-               mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
-               smooth=args.smooth, smooth_mode=args.smoother,
-               compression=args.compression)
+    camera = None
+    if args.camera:
+        from adfusion.app.camera_file import load_camera
+
+        camera = load_camera(args.camera)
+    mount = None
+    if args.mount:
+        try:
+            mount = [float(x) for x in args.mount.replace(" ", "").split(",")]
+        except ValueError:
+            mount = []
+        if len(mount) != 4:
+            raise ValueError(f"--mount {args.mount}: give q_body_cam as four numbers w,x,y,z")
+    heads = None
+    if args.heads:
+        try:
+            heads = [int(k) for k in args.heads.split(",")]
+        except ValueError:
+            raise ValueError(f"--heads {args.heads}: camera indices such as 0,2") from None
+    if args.start_utc:
+        from adfusion.logs.writer import utc_iso
+
+        utc_iso(args.start_utc)  # checked here: a one-line error before any work
+    options = ReplayOptions(use_gyro=not args.no_gyro, use_mag=not args.no_mag,
+                            mag_limit=args.mag_limit, camera=camera, fov_deg=args.fov,
+                            q_body_cam=mount, start_utc=args.start_utc, sigma=args.sigma,
+                            fov_error_deg=args.fov_error, epoch=args.epoch,
+                            exposure_s=args.exposure, arw_rad_sqrt_s=args.gyro_arw,
+                            rrw_rad_s_sqrt_s=args.gyro_rrw, heads=heads)
+    s = replay(args.input, args.output, options=options, progress=sys.stderr.isatty(),
+               smooth=args.smooth, smooth_mode=args.smoother, compression=args.compression,
+               fps=args.fps, timestamps=args.timestamps, imu=args.imu,
+               image_topic=args.image_topic, imu_topic=args.imu_topic,
+               mag_topic=args.mag_topic)
     print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
     return 1 if s.smoother.get("error") else 0  # the filter's output is written either way
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from adfusion.app.export import read_attitude_history, write_aem, write_csv
+
+    if not (args.aem or args.csv):
+        raise ValueError("nothing to export: give --aem FILE and/or --csv FILE")
+    history = read_attitude_history(args.log, smoothed=args.smoothed)
+    if args.aem:
+        write_aem(history, args.aem)
+        print(f"AEM: {len(history.t)} attitudes → {args.aem}")
+    if args.csv:
+        write_csv(history, args.csv)
+        print(f"CSV: {len(history.t)} rows → {args.csv}")
+    return 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
     from adfusion.app.report import report
 
-    files = report(args.log, args.output)
+    files = report(args.log, args.output, progress=sys.stderr.isatty())
     print("\n".join(str(f) for f in files))
     return 0
 
@@ -662,14 +786,32 @@ def cmd_demo(args: argparse.Namespace) -> int:
           f"→ {sim} ({time.perf_counter() - t0:.1f} s)")
     s = replay(sim, rep, progress=sys.stderr.isatty())
     print(f"replayed → {rep}\n{s}")
-    files = report(rep, out / "report")
-    print(f"report → {files[-1]} (+{len(files) - 1} plots); open {rep} in Foxglove\n"
+    files = report(rep, out / "report", progress=sys.stderr.isatty())
+    print(f"report → {files[-1]} (+{len(files) - 2} plots); open {rep} in Foxglove with "
+          f"{rep.with_name(rep.stem + '.layout.json')}\n"
           f"total {time.perf_counter() - t0:.1f} s")
     return 0
 
 
 def _run_bench(module, args: argparse.Namespace) -> int:
     module.run(args)
+    return 0
+
+
+def cmd_acs(args: argparse.Namespace) -> int:
+    try:
+        from adfusion.basilisk.acs import run_acs
+    except ModuleNotFoundError as e:
+        if (e.name or "").split(".")[0] != "Basilisk":
+            raise
+        raise ValueError("Basilisk is not installed: pip install 'adfusion[bsk]'") from None
+    if args.duration is not None and not args.duration > 0:
+        raise ValueError("--duration must be positive")
+    t0 = time.perf_counter()
+    rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
+                  images=args.images)
+    print(json.dumps(rep.as_dict(), indent=2) if args.json else rep.table())
+    print(f"→ {args.output} and its report ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return 0
 
 

@@ -152,10 +152,36 @@ class Estimator:
         self.t: float | None = None
         self._omega_hold: NDArray[np.float64] | None = None
         self.misses = 0
+        self._heads: list[dict] = []  # several cameras (add_camera): each one's own state
+        self._active = 0
 
     @property
     def initialized(self) -> bool:
         return self.filter is not None
+
+    _HEAD = ("solver", "q_body_cam", "q_cam_body", "R_body_cam", "misses")
+
+    def add_camera(self, solver: Solver, q_body_cam: ArrayLike) -> int:
+        """Another star camera (its own model in ``solver``, its own mounting) fused into
+        the same filter; returns its index for ``step(..., camera=k)`` (the constructor's
+        camera is 0). Each camera keeps its own tracking state (misses, search cone);
+        the attributes ``solver``, ``q_body_cam`` and ``misses`` are camera 0's."""
+        if not self._heads:
+            self._heads.append({a: getattr(self, a) for a in self._HEAD})
+        q = rot.normalize(q_body_cam)
+        self._heads.append({"solver": solver, "q_body_cam": q, "q_cam_body": rot.inverse(q),
+                            "R_body_cam": rot.to_matrix(q), "misses": 0})
+        return len(self._heads) - 1
+
+    def _use_camera(self, k: int) -> None:
+        if k == self._active:
+            return
+        if not 0 <= k < max(len(self._heads), 1):
+            raise ValueError(f"no camera {k} (add_camera adds cameras 1, 2, …)")
+        self._heads[self._active].update({a: getattr(self, a) for a in self._HEAD})
+        for a, v in self._heads[k].items():
+            setattr(self, a, v)
+        self._active = k
 
     def _make_filter(self, q_body_icrs: NDArray, sigma_att_rad: float):
         if self.video_only:
@@ -175,13 +201,15 @@ class Estimator:
         frame: NDArray | str | None = None,
         detections=None,
         exposure_s: float | None = None,
+        camera: int = 0,
     ) -> StepRecord:
         """Advance to time ``t`` (s) and apply the measurements taken at ``t``.
 
         ``gyro``: body rate (rad/s). ``mag``: (field in the body frame, the same field in
         ICRS) in any common unit. ``frame``: an image (detected here) or ``detections``
         (a :class:`starid.Detections` or an (N, 2) / (N, 3) array), taken at mid-exposure;
-        ``exposure_s`` overrides the estimator's exposure for this frame.
+        ``exposure_s`` overrides the estimator's exposure for this frame; ``camera`` is the
+        index of the camera that took it (:meth:`add_camera`).
         """
         rec = StepRecord(t=float(t), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
         if not np.isfinite(t):
@@ -202,8 +230,12 @@ class Estimator:
                 self._omega_hold = g
                 rec.sensors.append("gyro")
         if frame is not None or detections is not None:
-            self._star_update(frame, detections, rec,
-                              self.exposure_s if exposure_s is None else exposure_s)
+            self._use_camera(camera)
+            try:
+                self._star_update(frame, detections, rec,
+                                  self.exposure_s if exposure_s is None else exposure_s)
+            finally:
+                self._use_camera(0)
         if mag is not None:
             self._mag_update(mag, rec)
         return self._finish(rec)

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +28,10 @@ import numpy as np
 
 from adfusion.app.detect_worker import keep_freed_memory
 from adfusion.app.replay.sinks import LogSink, ReplaySummary, SmootherSink, SummarySink
-from adfusion.app.replay.sources import McapInput, Source
+from adfusion.app.replay.sources import Source
 from adfusion.app.replay.stages import DetectAhead, EstimationStage, Step, TruthStage
 from adfusion.estimation.estimator import Estimator
+from adfusion.logs import topics
 from adfusion.starid import rotations as rot
 from adfusion.starid.camera import Camera
 from adfusion.starid.catalog import Catalog
@@ -43,11 +44,42 @@ __all__ = ["ReplayOptions", "Run", "replay", "run"]
 class ReplayOptions:
     """Settings of a replay that are not the input's (``None``: the input's, else the
     default). ``use_gyro=False`` is the video-only mode (the filter estimates the body rate
-    from the star fixes); ``use_mag=False`` ignores the magnetometer."""
+    from the star fixes); ``use_mag=False`` ignores the magnetometer.
+
+    ``camera`` replaces the input's camera model; ``fov_deg`` (horizontal field of view)
+    makes a pinhole model of the input's frame size when there is neither; ``q_body_cam``
+    the mounting; ``start_utc`` the UTC time of run time 0; ``sigma`` the detection
+    threshold (noise sigmas); ``fov_error_deg`` the ± uncertainty of the focal length for
+    lost-in-space; ``epoch`` the catalogue epoch (Julian year); ``exposure_s`` the camera's
+    exposure (motion smear in tracking); ``arw_rad_sqrt_s`` / ``rrw_rad_s_sqrt_s`` the
+    gyro's angle and rate random walks; ``heads`` the cameras of a several-camera log to
+    replay (default all, fused in one estimator)."""
 
     use_gyro: bool = True
     use_mag: bool = True
     mag_limit: float | None = None
+    camera: Camera | None = None
+    fov_deg: float | None = None
+    q_body_cam: Any = None
+    start_utc: str | None = None
+    sigma: float | None = None
+    fov_error_deg: float = 0.0
+    epoch: float | None = None
+    exposure_s: float | None = None
+    arw_rad_sqrt_s: float | None = None
+    rrw_rad_s_sqrt_s: float | None = None
+    heads: list[int] | None = None
+
+
+@dataclass
+class Head:
+    """One star camera of the replay: its index in the input (``/camera{k}/...`` topics),
+    model, mounting and solver."""
+
+    index: int
+    camera: Camera
+    q_body_cam: np.ndarray
+    solver: Solver
 
 
 @dataclass
@@ -63,6 +95,8 @@ class Run:
     solver: Solver
     estimator: Estimator
     options: ReplayOptions
+    start_utc: str | None = None
+    heads: list[Head] = field(default_factory=list)  # every camera replayed, primary first
 
     @property
     def replay_metadata(self) -> dict[str, Any]:
@@ -72,29 +106,91 @@ class Run:
 
 def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     """Camera, catalogue, solver and estimator from the input's model and configuration."""
-    model = source.camera_model()
-    if model is None:
-        raise ValueError(f"{source.name}: no camera model attachment (camera.json) in the log")
-    camera = Camera.from_dict(model)
     config = source.config
-    q_body_cam = np.asarray(config.get("q_body_cam", rot.IDENTITY), dtype=np.float64)
-    epoch = float(config.get("catalog", {}).get("epoch", 2000.0))
+    camera = _camera(source, options)
+    model = camera.to_dict()
+    mount = options.q_body_cam if options.q_body_cam is not None else config.get("q_body_cam")
+    q_body_cam = np.asarray(rot.IDENTITY if mount is None else mount, dtype=np.float64)
+    if q_body_cam.shape != (4,) or not np.all(np.isfinite(q_body_cam)) or not np.any(q_body_cam):
+        raise ValueError(f"mounting {q_body_cam.tolist()}: give --mount as a quaternion "
+                         "q_body_cam 'w,x,y,z'")
+    if options.q_body_cam is not None:
+        q_body_cam = rot.normalize(q_body_cam)
+    epoch = float(options.epoch if options.epoch is not None
+                  else config.get("catalog", {}).get("epoch", 2000.0))
     limit = (options.mag_limit if options.mag_limit is not None
              else float(config.get("mag_limit", 5.5)))
     catalog = Catalog.hipparcos(mag_limit=limit, epoch=epoch)
     gyro_cfg = config.get("gyro", {})
     sigma_px = float(config.get("camera", {}).get("centroid_sigma_px", 0.5))
-    solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5))
+    extra = {"fov_error_deg": options.fov_error_deg} if options.fov_error_deg else {}
+    solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5), **extra)
     solver.warm_up()  # its compiled search loads (or, once after an install, compiles) here
     ahead.camera = camera
+    if options.sigma is not None:
+        ahead.detect_kwargs = {"sigma": float(options.sigma)}
     # the exposure lets tracking model motion smear (long streaks that break into pieces)
-    exposure = config.get("camera", {}).get("exposure_s")
-    est = Estimator(solver, q_body_cam,
-                    arw_rad_sqrt_s=float(gyro_cfg.get("arw_rad_sqrt_s", 1e-4)),
-                    rrw_rad_s_sqrt_s=float(gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6)),
+    exposure = (options.exposure_s if options.exposure_s is not None
+                else config.get("camera", {}).get("exposure_s"))
+    arw = (options.arw_rad_sqrt_s if options.arw_rad_sqrt_s is not None
+           else gyro_cfg.get("arw_rad_sqrt_s", 1e-4))
+    rrw = (options.rrw_rad_s_sqrt_s if options.rrw_rad_s_sqrt_s is not None
+           else gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6))
+    est = Estimator(solver, q_body_cam, arw_rad_sqrt_s=float(arw), rrw_rad_s_sqrt_s=float(rrw),
                     video_only=not options.use_gyro, detect=ahead,
                     exposure_s=None if exposure is None else float(exposure))
-    return Run(source, camera, model, config, q_body_cam, limit, solver, est, options)
+    start = options.start_utc or getattr(source, "start_utc", None) or config.get("start_utc")
+    r = Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start)
+    r.heads = [Head(0, camera, q_body_cam, solver)]
+    n_heads = len(config.get("heads", [])) or 1
+    selected = list(range(n_heads)) if options.heads is None else list(options.heads)
+    if any(not 0 <= k < n_heads for k in selected) or not selected:
+        raise ValueError(f"--heads {selected}: the log has cameras 0..{n_heads - 1}")
+    if selected != [0]:
+        models = source.camera_models()
+        r.heads = []
+        for k in selected:
+            cam_k = Camera.from_dict(models[k])
+            q_k = np.asarray(config["heads"][k]["q_body_cam"], dtype=np.float64)
+            solver_k = (solver if k == 0 and cam_k == camera else
+                        Solver(catalog, cam_k, centroid_sigma_px=max(sigma_px, 0.5), **extra))
+            r.heads.append(Head(k, cam_k, q_k, solver_k))
+        first = r.heads[0]
+        r.camera, r.camera_model, r.q_body_cam, r.solver = (first.camera, first.camera.to_dict(),
+                                                             first.q_body_cam, first.solver)
+        est = Estimator(first.solver, first.q_body_cam, arw_rad_sqrt_s=float(arw),
+                        rrw_rad_s_sqrt_s=float(rrw), video_only=not options.use_gyro,
+                        detect=ahead, exposure_s=None if exposure is None else float(exposure))
+        for h in r.heads[1:]:
+            est.add_camera(h.solver, h.q_body_cam)
+        r.estimator = est
+        ahead.cameras = {topics.camera_topic(h.index): h.camera for h in r.heads}
+    return r
+
+
+def _camera(source: Source, options: ReplayOptions) -> Camera:
+    """The camera: ``options.camera``, else the input's model, else a pinhole of
+    ``options.fov_deg`` over the input's frame size — or a one-line error naming the flag."""
+    if options.camera is not None:
+        camera = options.camera
+    elif (model := source.camera_model()) is not None:
+        camera = Camera.from_dict(model)
+    elif options.fov_deg is not None:
+        size = source.image_size()
+        if size is None:
+            raise ValueError(f"{source.name}: no frames to take the image size from")
+        if not 0 < options.fov_deg < 180:
+            raise ValueError(f"--fov {options.fov_deg}: a horizontal field of view in degrees,"
+                             " between 0 and 180")
+        camera = Camera.pinhole(size[0], size[1], float(options.fov_deg))
+    else:
+        raise ValueError(f"{source.name}: no camera model in the input: give --camera FILE "
+                         "(OpenCV or ROS camera_info YAML, or camera.json) or --fov DEG")
+    size = source.image_size()
+    if size is not None and tuple(size) != (camera.width, camera.height):
+        raise ValueError(f"the camera model is {camera.width}×{camera.height} px but the frames "
+                         f"are {size[0]}×{size[1]}: give the matching --camera FILE")
+    return camera
 
 
 def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = None, *,
@@ -111,8 +207,9 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
         ahead.start()
     try:
         r = _build(source, options, ahead)
-        stages = (TruthStage(), EstimationStage(r.estimator, use_gyro=options.use_gyro,
-                                                use_mag=options.use_mag))
+        stages = (TruthStage(), EstimationStage(
+            r.estimator, use_gyro=options.use_gyro, use_mag=options.use_mag,
+            cameras={h.index: i for i, h in enumerate(r.heads)}))
         messages = ahead.read(source if not progress else _progress(source))
         opened: list[Any] = []
         try:
@@ -146,11 +243,21 @@ def replay(
     smooth: bool = False,
     smooth_mode: str = "batch",
     compression: str = "auto",
+    options: ReplayOptions | None = None,
+    layout: bool = True,
+    **input_args: Any,
 ) -> ReplaySummary:
     """Replay ``in_path`` through detection → identification → filter into ``out_path``.
 
+    ``in_path``: one of our MCAP logs, a ROS 2 bag in MCAP, a folder of images or a video
+    file (:func:`adfusion.app.replay.sources.open_input`, which takes ``input_args``: ``fps``,
+    ``timestamps``, ``imu``, ``image_topic``, ``imu_topic``, ``mag_topic``). ``options``
+    (:class:`ReplayOptions`) replaces ``use_gyro``, ``use_mag`` and ``mag_limit`` and adds
+    the camera, mounting, start time and detection/solver settings.
+
     ``use_gyro=False`` is the video-only mode (the real OEDIPUS-C case: no gyro was
-    digitised): the filter estimates the body rate from the star fixes themselves.
+    digitised): the filter estimates the body rate from the star fixes themselves; an input
+    without gyro samples is replayed so.
 
     ``smooth=True`` records every frame's identified stars with the gyro and magnetometer
     samples and, after the filter pass, smooths the whole log
@@ -163,26 +270,35 @@ def replay(
     images uncompressed and any other with LZ4, because replay is about speed and noisy
     video does not compress: on the 60 s OEDIPUS-like log LZ4 saved 2 % of 460 MB for
     ~0.4 ms of the main process per frame, zstd 1.5× for 1.9 ms; ``"lz4"``, ``"zstd"``
-    (smallest) and ``"none"`` choose explicitly.
+    (smallest) and ``"none"`` choose explicitly. ``layout=True`` writes a Foxglove layout
+    beside the output (``OUT.layout.json``, :class:`~adfusion.app.replay.sinks.LayoutSink`).
 
     Process-wide side effect: :func:`adfusion.app.detect_worker.keep_freed_memory` (glibc
     keeps freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
+    from adfusion.app.replay.sinks import LayoutSink
+    from adfusion.app.replay.sources import open_input
+
     t_start = time.perf_counter()
     keep_freed_memory()
+    if options is None:
+        options = ReplayOptions(use_gyro, use_mag, mag_limit)
     ahead = DetectAhead()
     ahead.start()
     try:
-        source = McapInput(in_path)
+        source = open_input(in_path, **input_args)
+        if not getattr(source, "has_gyro", True) and options.use_gyro:
+            options.use_gyro = False  # nothing to propagate with: the rate filter (video only)
         summary = ReplaySummary()
         if compression == "auto":
             compression = "none" if source.has_images else "lz4"
         log = LogSink(out_path, compression)
         sinks: list[Any] = [log]
+        if layout:
+            sinks.append(LayoutSink(out_path))
         if smooth:
             sinks.append(SmootherSink(log, summary, smooth_mode))
         sinks.append(SummarySink(summary, t_start=t_start))
-        run(source, sinks, ReplayOptions(use_gyro, use_mag, mag_limit), progress=progress,
-            ahead=ahead)
+        run(source, sinks, options, progress=progress, ahead=ahead)
     finally:
         ahead.close()
     summary.wall_s = time.perf_counter() - t_start
@@ -196,4 +312,5 @@ def _progress(source):
         from tqdm import tqdm
     except ImportError:  # pragma: no cover
         return source
-    return tqdm(source, unit="msg", mininterval=0.5, desc="replay")
+    total = len(source) if hasattr(source, "__len__") else None
+    return tqdm(source, total=total, unit="msg", mininterval=0.5, desc="replay")

@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -34,8 +35,17 @@ from adfusion.starid.solver import Solver
 if TYPE_CHECKING:
     from adfusion.app.replay.run import Run
 
-__all__ = ["InViewCounter", "LogSink", "ReplaySummary", "SmootherSink", "SummarySink",
-           "view_radius"]
+__all__ = [
+    "InViewCounter",
+    "LayoutSink",
+    "LogSink",
+    "ReplaySummary",
+    "SmootherSink",
+    "SummarySink",
+    "attitude_deg",
+    "attitude_error",
+    "view_radius",
+]
 
 
 @dataclass
@@ -118,38 +128,67 @@ class LogSink:
     """The output MCAP (``compression`` as :func:`adfusion.app.replay.replay` documents).
 
     Inputs (gyro, magnetometer, truth, frames) are copied as read — no decode/encode round
-    trip; each frame adds ``/starid/solution``, ``/camera/annotations``, and with an estimate
-    ``/estimate/state``, ``/estimate/pose`` and ``/tf``. Other sinks write their products
-    through :attr:`log` before it closes."""
+    trip; each frame adds ``/starid/solution``, ``/camera/annotations``, and with an
+    estimate ``/estimate/state``, ``/estimate/attitude`` (degrees), ``/estimate/pose`` and
+    ``/tf``. With a known start time (``Run.start_utc``) the log times are UTC. Other sinks
+    write their products through :attr:`log` before it closes."""
 
     def __init__(self, path, compression: str = "lz4") -> None:
         self.path = path
         self.compression = compression
         self.log: LogWriter | None = None
         self.q_body_cam = np.asarray(rot.IDENTITY)
+        self.estimator = None
+        self.multi = False
+        self.mounts: list[tuple] = []
 
     def open(self, run: Run) -> None:
         self.q_body_cam = run.q_body_cam
-        self.log = log = LogWriter(self.path, compression=self.compression)
+        self.estimator = run.estimator
+        self.log = log = LogWriter(self.path, compression=self.compression,
+                                   start_utc=run.start_utc)
         log.add_metadata("replay", run.replay_metadata)
         if run.config:
             log.add_metadata("config", run.config)
-        log.add_camera_model(run.camera_model)
-        cam = run.camera
-        log.write_calibration(0.0, cam.width, cam.height, cam.K, cam.D, "camera")
+        self.multi = len(run.heads) > 1 or run.heads[0].index != 0
+        if not self.multi:
+            log.add_camera_model(run.camera_model)
+            cam = run.camera
+            log.write_calibration(0.0, cam.width, cam.height, cam.K, cam.D, "camera")
+            self.mounts = [("body", "camera", self.q_body_cam, (0.0, 0.0, 0.0))]
+            return
+        self.mounts = []
+        for h in run.heads:  # several cameras: each on its own topics and frame
+            name = topics.camera_frame(h.index)
+            log.add_camera_model(h.camera.to_dict(),
+                                 "camera.json" if h.index == 0 else f"{name}.json")
+            log.write_calibration(0.0, h.camera.width, h.camera.height, h.camera.K, h.camera.D,
+                                  name, topic=topics.camera_topic(h.index, "calibration"))
+            self.mounts.append(("body", name, h.q_body_cam, (0.0, 0.0, 0.0)))
 
     def take(self, step: Step) -> None:
         kind, msg = step.kind, step.msg
         if kind == FRAME:
-            if msg.topic == topics.CAMERA_IMAGE:
+            if isinstance(msg.payload, np.ndarray):
                 if msg.raw is not None:  # a foxglove.RawImage: copied as read
                     self.log.write_protobuf_bytes(msg.topic, msg.t_s, "foxglove.RawImage",
                                                   msg.raw)
                 else:
-                    self.log.write_image(msg.t_s, msg.payload, "camera")
-            self._record_frame(msg.t_s, step.record)
+                    self.log.write_image(msg.t_s, msg.payload, topics.camera_frame(step.head),
+                                         topic=msg.topic)
+            else:
+                self._copy(msg)
+            self._record_frame(msg.t_s, step.record, step.truth_q, step.head)
         elif kind in (GYRO, MAG, TRUTH):
             self._copy(msg)
+        elif msg.topic == topics.TRUTH_POSE:  # the truth's pose, and its frame for the 3D view
+            q_icrs_body = np.asarray(msg.payload["q_wxyz"], dtype=float)
+            if msg.raw is not None:  # copied as read
+                self.log.write_protobuf_bytes(topics.TRUTH_POSE, msg.t_s,
+                                              "foxglove.PoseInFrame", msg.raw)
+            else:
+                self.log.write_pose(topics.TRUTH_POSE, msg.t_s, q_icrs_body, "icrs")
+            self.log.write_tf(msg.t_s, [("icrs", "body_truth", q_icrs_body, (0.0, 0.0, 0.0))])
 
     def close(self) -> None:
         if self.log is not None:
@@ -162,33 +201,133 @@ class LogSink:
         else:
             self.log.write_json(msg.topic, msg.t_s, msg.payload)
 
-    def _record_frame(self, t: float, rec: StepRecord) -> None:
+    def _record_frame(self, t: float, rec: StepRecord, truth_q=None, head: int = 0) -> None:
         log, sol = self.log, rec.solution
         if sol is not None:
             predicted = None
             cand = sol.candidates[0] if sol.candidates else None
             if sol.ok and cand is not None:
                 predicted = cand.predicted_xy
-            log.write_json(topics.STARID_SOLUTION, t, {
+            det_xy = rec.detections_xy
+            res = sol.residuals_rad if sol.ok and sol.residuals_rad is not None else ()
+            solution = {
                 "t": t, "ok": sol.ok, "mode": sol.mode, "reason": sol.reason,
                 "q_cam_icrs": sol.q_cam_icrs if sol.ok else None,
                 "matches": [list(m) for m in sol.matches],
                 "matching_counter": sol.matching_counter,
                 "p_false": sol.p_false, "cone_deg": rec.cone_deg,
-                "time_ms": sol.time_s * 1e3, "fix_accepted": rec.fix_accepted})
-            det_xy = rec.detections_xy
+                "time_ms": sol.time_s * 1e3, "fix_accepted": rec.fix_accepted,
+                "n_detections": 0 if det_xy is None else len(det_xy),
+                "residuals_arcsec": np.degrees(np.asarray(res, dtype=float)) * 3600}
+            if self.multi:
+                solution["camera"] = topics.camera_frame(head)
+            log.write_json(topics.STARID_SOLUTION, t, solution)
             if det_xy is not None:
                 identified = [(float(det_xy[d][0]), float(det_xy[d][1]), str(i))
                               for d, i in sol.matches if d < len(det_xy)]
-                log.write_annotations(t, det_xy, identified=identified, predicted_xy=predicted)
+                log.write_annotations(t, det_xy, identified=identified, predicted_xy=predicted,
+                                      topic=topics.camera_topic(head, "annotations"))
         if rec.q_body_icrs is not None:
-            log.write_json(topics.ESTIMATE_STATE, t, {
-                "t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
-                "cov_diag": rec.sigma_rad**2, "nis": rec.nis,
-                "rejected": [list(r) for r in rec.rejected]})
+            state = {"t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
+                     "cov_diag": rec.sigma_rad**2, "nis": rec.nis.get("star fix"),
+                     "rejected": [{"input": i, "reason": r} for i, r in rec.rejected]}
+            if self.estimator.video_only:  # no gyro, no bias: the filter's rate instead
+                state["bias"] = None
+                state["omega"] = np.asarray(self.estimator.filter.omega_rad_s)
+            log.write_json(topics.ESTIMATE_STATE, t, state)
+            log.write_json(topics.ESTIMATE_ATTITUDE, t, attitude_deg(
+                t, rec.q_body_icrs, rec.sigma_rad[:3], rec.star_mode or None, rec.n_stars))
+            if truth_q is not None:
+                log.write_json(topics.ESTIMATE_ERROR, t, attitude_error(
+                    t, rec.q_body_icrs, truth_q, rec.sigma_rad[:3]))
             log.write_attitude(topics.ESTIMATE_POSE, t, rec.q_body_icrs)
             log.write_tf(t, [("icrs", "body", rot.inverse(rec.q_body_icrs), (0.0, 0.0, 0.0)),
-                             ("body", "camera", self.q_body_cam, (0.0, 0.0, 0.0))])
+                             *self.mounts])
+
+
+def attitude_error(t: float, q_body_icrs, q_true_body_icrs, sigma_rad) -> dict[str, Any]:
+    """An ``/estimate/error`` record: the estimate's error against the truth as a rotation
+    vector in body axes (x, y cross-boresight, z roll), deg, its angle, and the 3σ bounds.
+    (Float arithmetic: per frame, numpy's per-call overhead was most of the cost.)
+
+    Example:
+        >>> import numpy as np
+        >>> from adfusion.starid import rotations as rot
+        >>> q_err = rot.exp_map([0.0, 0.0, np.radians(0.1)])
+        >>> e = attitude_error(0.0, q_err, [1.0, 0.0, 0.0, 0.0], [1e-3] * 3)
+        >>> [round(v, 6) for v in e["error_deg"]], round(e["angle_deg"], 6)
+        ([0.0, 0.0, 0.1], 0.1)
+    """
+    tw, tx, ty, tz = (float(v) for v in q_true_body_icrs)
+    w, x, y, z = rot.hamilton(tuple(float(v) for v in q_body_icrs), (tw, -tx, -ty, -tz))
+    if w < 0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * math.atan2(s, w)
+    k = angle / s if s > 1e-12 else 2.0 / max(w, 1e-300)
+    deg = math.degrees(1.0)
+    sig = [3.0 * deg * float(v) for v in sigma_rad]
+    return {"t": t, "error_deg": [k * x * deg, k * y * deg, k * z * deg],
+            "angle_deg": angle * deg, "sigma3_deg": sig}
+
+
+class LayoutSink:
+    """A Foxglove layout beside the output, ``OUT.layout.json``
+    (:func:`adfusion.app.layout.foxglove_layout`): the image with its annotations, a 3D view
+    of the body, camera and truth frames in ``icrs``, plots of the attitude error with its
+    3σ bounds, the NIS, the stars per frame and the star-ID mode."""
+
+    def __init__(self, out_path) -> None:
+        from pathlib import Path
+
+        out = Path(out_path)
+        self.path = out.with_name(out.stem + ".layout.json")
+
+    def open(self, run: Run) -> None:
+        import json
+
+        from adfusion.app.layout import foxglove_layout
+
+        self.path.write_text(json.dumps(foxglove_layout(truth=True), indent=2))
+
+    def take(self, step: Step) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def attitude_deg(t: float, q_body_icrs, sigma_rad, mode: str | None = None,
+                 n_stars: int = 0) -> dict[str, Any]:
+    """An ``/estimate/attitude`` record: RA, Dec, roll of body +z (deg) with 1σ per axis —
+    :func:`adfusion.starid.rotations.radec_roll_from_q_cam_icrs` of ``q_body_icrs``, in
+    float arithmetic.
+
+    Example:
+        >>> import numpy as np
+        >>> a = attitude_deg(0.0, [1.0, 0.0, 0.0, 0.0], np.radians([0.01, 0.01, 0.1]))
+        >>> round(a["dec_deg"], 6), [round(s, 6) for s in a["sigma_deg"]]
+        (90.0, [0.01, 0.01, 0.1])
+    """
+    w, x, y, z = (float(v) for v in q_body_icrs)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    # rows 1 and 2 of R(q) (ICRS → body): body +y and +z in ICRS
+    r1 = (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x))
+    b = (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+    up = (-r1[0], -r1[1], -r1[2])
+    ra = math.atan2(b[1], b[0]) % (2 * math.pi)
+    dec = math.asin(max(-1.0, min(1.0, b[2])))
+    e = (-b[1], b[0], 0.0)  # z × b
+    ne = math.hypot(e[0], e[1])
+    e = (0.0, 1.0, 0.0) if ne < 1e-12 else (e[0] / ne, e[1] / ne, 0.0)
+    north = (b[1] * e[2] - b[2] * e[1], b[2] * e[0] - b[0] * e[2], b[0] * e[1] - b[1] * e[0])
+    roll = math.atan2(sum(u * v for u, v in zip(up, e, strict=True)),
+                      sum(u * v for u, v in zip(up, north, strict=True))) % (2 * math.pi)
+    deg = math.degrees(1.0)
+    return {"t": t, "ra_deg": ra * deg, "dec_deg": dec * deg, "roll_deg": roll * deg,
+            "sigma_deg": [deg * float(v) for v in sigma_rad], "mode": mode,
+            "n_stars": int(n_stars)}
 
 
 class SummarySink:
@@ -203,11 +342,13 @@ class SummarySink:
         self.summary = summary if summary is not None else ReplaySummary()
         self.in_view: InViewCounter | None = None
         self.t_start = t_start
+        self.primary = 0
 
     def open(self, run: Run) -> None:
         if self.t_start is not None:
             self.summary.setup_s = time.perf_counter() - self.t_start
         self.in_view = InViewCounter(run.solver, run.q_body_cam)
+        self.primary = run.heads[0].index if run.heads else 0
 
     def take(self, step: Step) -> None:
         if step.kind != FRAME:
@@ -222,7 +363,8 @@ class SummarySink:
         elif sol is not None and sol.ok:
             s.rejected_fixes += 1
         if truth_q is not None:
-            self.in_view.add(truth_q, rec.fix_accepted)
+            if step.head == self.primary:  # the batch count knows the first camera's view
+                self.in_view.add(truth_q, rec.fix_accepted)
             if rec.q_body_icrs is not None:
                 s.errors_deg.append(float(np.degrees(rot.angle_between(rec.q_body_icrs,
                                                                        truth_q))))
@@ -251,6 +393,8 @@ class SmootherSink:
     def open(self, run: Run) -> None:
         from adfusion.estimation.smoother import SmootherInput
 
+        if len(run.heads) > 1:
+            raise ValueError("--smooth smooths one camera's log: choose one with --heads K")
         est = run.estimator
         self.solver = run.solver
         self.recording = SmootherInput(run.q_body_cam, arw_rad_sqrt_s=est.arw,

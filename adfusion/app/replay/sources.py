@@ -14,13 +14,26 @@ Example:
 
 from __future__ import annotations
 
+import heapq
 import os
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any, Protocol
 
-from adfusion.logs import McapLogReader, Message, topics
+import cv2
+import numpy as np
 
-__all__ = ["McapInput", "Source"]
+from adfusion.logs import (
+    ImageFolderSource,
+    McapLogReader,
+    Message,
+    VideoSource,
+    read_sensor_csv,
+    topics,
+)
+from adfusion.logs.sources import to_grey
+
+__all__ = ["FolderInput", "McapInput", "Ros2BagInput", "Source", "VideoInput", "open_input"]
 
 
 class Source(Protocol):
@@ -41,6 +54,9 @@ class Source(Protocol):
     def camera_model(self) -> dict[str, Any] | None:
         """The camera model (:meth:`adfusion.starid.camera.Camera.to_dict`), if known."""
 
+    def image_size(self) -> tuple[int, int] | None:
+        """(width, height) of the frames, when the input can tell it cheaply."""
+
     def __iter__(self) -> Iterator[Message]:
         """The messages in time order."""
 
@@ -60,9 +76,21 @@ class McapInput:
         self.config: dict[str, Any] = self.reader.metadata.get("config", {})
         self.has_images = any(c.topic == topics.CAMERA_IMAGE
                               for c in self.reader.channels.values())
+        self.start_utc = self.reader.start_utc
+        self.has_gyro = any(c.topic == topics.GYRO for c in self.reader.channels.values())
 
     def camera_model(self) -> dict[str, Any] | None:
         return self.reader.camera_model()
+
+    def camera_models(self) -> list[dict[str, Any] | None]:
+        """Every camera's model (``camera.json``, ``camera1.json``, …) of a several-camera
+        log, in camera order."""
+        n = max(len(self.config.get("heads", [])), 1)
+        return [self.reader.camera_model("camera.json" if k == 0 else f"camera{k}.json")
+                for k in range(n)]
+
+    def image_size(self) -> tuple[int, int] | None:
+        return None
 
     def __iter__(self) -> Iterator[Message]:
         return iter(self.reader)
@@ -73,3 +101,388 @@ class McapInput:
     @property
     def problem(self) -> str | None:
         return None if self.reader.problem is None else str(self.reader.problem)
+
+
+def _sensors(imu: str | os.PathLike[str] | None, problems: list[str]) -> list[Message]:
+    """Gyro/magnetometer samples of a CSV (:func:`adfusion.logs.read_sensor_csv`) or a PX4
+    ULog (``.ulg``, through ``pyulog``)."""
+    if imu is None:
+        return []
+    if not os.path.exists(imu):
+        raise FileNotFoundError(f"--imu {imu}: no such file")
+    if str(imu).lower().endswith(".ulg"):
+        return read_ulog(imu)
+    return read_sensor_csv(imu, problems)
+
+
+def read_ulog(path: str | os.PathLike[str]) -> list[Message]:
+    """Gyro (``sensor_combined.gyro_rad``, rad/s) and magnetometer (``vehicle_magnetometer``
+    or ``sensor_mag``, gauss → nT) samples of a PX4 ULog, on the log's clock (its
+    ``timestamp``, µs since boot, in seconds): the frames' times must be on that clock
+    (``--timestamps``). Needs ``pyulog`` (the ``ulog`` extra)."""
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise ValueError(f"--imu {path}: reading PX4 ULog needs pyulog "
+                         "(pip install 'pyulog>=1.0')") from None
+    ulog = ULog(os.fspath(path), ["sensor_combined", "vehicle_magnetometer", "sensor_mag"])
+    out: list[Message] = []
+    for d in ulog.data_list:
+        f = d.data
+        if d.name == "sensor_combined":
+            for k in range(len(f["timestamp"])):
+                out.append(Message(float(f["timestamp"][k]) / 1e6, topics.GYRO, {"omega": [
+                    float(f[f"gyro_rad[{i}]"][k]) for i in range(3)]}))
+        elif d.name in ("vehicle_magnetometer", "sensor_mag"):
+            key = "magnetometer_ga" if "magnetometer_ga[0]" in f else None
+            for k in range(len(f["timestamp"])):
+                b = ([float(f[f"{key}[{i}]"][k]) for i in range(3)] if key else
+                     [float(f[a][k]) for a in ("x", "y", "z")])
+                out.append(Message(float(f["timestamp"][k]) / 1e6, topics.MAG,
+                                   {"b_body": [1e5 * v for v in b]}))
+    out.sort(key=lambda m: m.t_s)
+    return out
+
+
+class _FramesInput:
+    """Shared parts of the inputs that hold only frames (plus an optional IMU file)."""
+
+    name: str
+    config: dict[str, Any]
+    has_images = True
+    start_utc: str | None = None
+
+    def camera_model(self) -> dict[str, Any] | None:
+        return None
+
+    def image_size(self) -> tuple[int, int] | None:
+        return self._size
+
+    @property
+    def problem(self) -> str | None:
+        return "; ".join(self._source.problems) or None
+
+    @property
+    def has_gyro(self) -> bool:
+        return self.imu is not None
+
+    def __iter__(self) -> Iterator[Message]:
+        sensors = _sensors(self.imu, self._source.problems)
+        return heapq.merge(sensors, _prefetch(self._source.frames()), key=lambda m: m.t_s)
+
+
+class FolderInput(_FramesInput):
+    """A folder of images (sorted by name: PNG, TIFF, JPEG, PGM, FITS …) with frame times
+    from a ``timestamps`` CSV (``filename, t_s``) or a frame rate ``fps``, and an optional
+    ``imu`` file (CSV as :func:`adfusion.logs.read_sensor_csv` defines, or a PX4 ULog)."""
+
+    def __init__(self, folder: str | os.PathLike[str], *, fps: float | None = None,
+                 timestamps: str | os.PathLike[str] | None = None,
+                 imu: str | os.PathLike[str] | None = None) -> None:
+        self.name = str(folder)
+        if timestamps is None and not fps:
+            raise ValueError(f"{folder}: frame times unknown: give --fps HZ or "
+                             "--timestamps CSV (columns filename,t_s)")
+        if fps is not None and not fps > 0:
+            raise ValueError(f"--fps {fps}: a frame rate must be positive")
+        if timestamps is not None and not os.path.exists(timestamps):
+            raise FileNotFoundError(f"--timestamps {timestamps}: no such file")
+        try:
+            self._source = ImageFolderSource(folder, fps=fps, timestamps_csv=timestamps)
+        except KeyError as e:
+            raise ValueError(f"--timestamps {timestamps}: no {e} column (need filename,t_s)") \
+                from None
+        if not self._source.names:
+            raise ValueError(f"{folder}: no images (.png, .tif, .jpg, .pgm, ...) in the folder")
+        self.imu = imu
+        self.config = {}
+        first = cv2.imread(str(Path(folder) / self._source.names[0]), cv2.IMREAD_UNCHANGED)
+        if first is None:
+            raise ValueError(f"{Path(folder) / self._source.names[0]}: not an image OpenCV reads")
+        self._size = (int(first.shape[1]), int(first.shape[0]))
+
+
+
+class VideoInput(_FramesInput):
+    """A video file (anything OpenCV opens) at ``fps`` (default: the container's rate), with
+    an optional ``imu`` file as :class:`FolderInput`."""
+
+    def __init__(self, path: str | os.PathLike[str], *, fps: float | None = None,
+                 imu: str | os.PathLike[str] | None = None) -> None:
+        self.name = str(path)
+        if fps is not None and not fps > 0:
+            raise ValueError(f"--fps {fps}: a frame rate must be positive")
+        try:
+            self._source = VideoSource(path, fps=fps)
+        except ValueError as e:
+            if "frame rate" in str(e):
+                raise ValueError(f"{path}: no frame rate in the container: give --fps HZ") \
+                    from None
+            raise
+        self.imu = imu
+        self.config = {}
+        cap = cv2.VideoCapture(os.fspath(path))
+        self._size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)),
+                      int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
+        cap.release()
+
+
+
+def _prefetch(frames: Iterator[Message], depth: int = 4) -> Iterator[Message]:
+    """Decode frames in a thread, ``depth`` ahead (OpenCV's decoders release the GIL)."""
+    import queue
+    import threading
+
+    q: queue.Queue = queue.Queue(depth)
+    end = object()
+    stop = threading.Event()
+
+    def fill() -> None:
+        try:
+            for m in frames:
+                while not stop.is_set():
+                    try:
+                        q.put(m, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+        except BaseException as e:  # raised again in the reader
+            q.put(e)
+        q.put(end)
+
+    thread = threading.Thread(target=fill, daemon=True, name="frame-decode")
+    thread.start()
+    try:
+        while (m := q.get()) is not end:
+            if isinstance(m, BaseException):
+                raise m
+            yield m
+    finally:
+        stop.set()
+
+
+ROS_IMAGE = ("sensor_msgs/msg/Image", "sensor_msgs/Image")
+ROS_COMPRESSED = ("sensor_msgs/msg/CompressedImage", "sensor_msgs/CompressedImage")
+ROS_IMU = ("sensor_msgs/msg/Imu", "sensor_msgs/Imu")
+ROS_MAG = ("sensor_msgs/msg/MagneticField", "sensor_msgs/MagneticField")
+ROS_INFO = ("sensor_msgs/msg/CameraInfo", "sensor_msgs/CameraInfo")
+_ROS_ENCODINGS = {"mono8": np.uint8, "8UC1": np.uint8, "mono16": np.uint16, "16UC1": np.uint16,
+                  "rgb8": np.uint8, "bgr8": np.uint8, "rgba8": np.uint8, "bgra8": np.uint8}
+
+
+def is_ros2_bag(path: str | os.PathLike[str]) -> bool:
+    """A rosbag2 folder (``metadata.yaml`` + ``.mcap``), or an MCAP file of ``ros2msg``
+    schemas (CDR messages)."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").exists() and any(p.glob("*.mcap"))
+    if p.suffix.lower() != ".mcap":
+        return False
+    try:
+        reader = McapLogReader(p, warn=False)
+    except Exception:
+        return False
+    return any(c.message_encoding == "cdr" for c in reader.channels.values())
+
+
+class Ros2BagInput:
+    """A ROS 2 bag in MCAP (a rosbag2 folder or its ``.mcap``), decoded with
+    ``mcap-ros2-support``: ``sensor_msgs/Image`` or ``CompressedImage`` frames, ``Imu``
+    (``angular_velocity``, rad/s, body), ``MagneticField`` (tesla → nT, body) and
+    ``CameraInfo`` (the camera model). Topics are found by type, or named with
+    ``image_topic`` / ``imu_topic`` / ``mag_topic``. Times are the messages' header stamps
+    (the log time where a stamp is zero), as run seconds from the first message, whose
+    UTC time becomes the run's ``start_utc``."""
+
+    def __init__(self, path: str | os.PathLike[str], *, image_topic: str | None = None,
+                 imu_topic: str | None = None, mag_topic: str | None = None,
+                 imu: str | os.PathLike[str] | None = None) -> None:
+        p = Path(path)
+        if p.is_dir():
+            files = sorted(p.glob("*.mcap"))
+            if not files:
+                raise ValueError(f"{path}: a rosbag2 folder without an .mcap file (only the "
+                                 "MCAP storage is read; convert with 'ros2 bag convert')")
+            p = files[0]
+        self.name, self.path = str(path), p
+        self.imu = imu
+        self.config: dict[str, Any] = {}
+        self.has_images = True
+        self._problems: list[str] = []
+        from mcap.reader import make_reader
+
+        with open(p, "rb") as f:
+            summary = make_reader(f).get_summary()
+        if summary is None:
+            raise ValueError(f"{path}: no MCAP summary (a bag still being recorded?)")
+        by_type: dict[str, list[str]] = {}
+        for ch in summary.channels.values():
+            schema = summary.schemas.get(ch.schema_id)
+            by_type.setdefault(schema.name if schema else "", []).append(ch.topic)
+
+        def pick(names: tuple[str, ...], given: str | None, flag: str) -> str | None:
+            if given is not None:
+                if not any(given in by_type.get(n, []) for n in names + tuple(by_type)):
+                    raise ValueError(f"{path}: no topic {given!r} ({flag}); topics: "
+                                     f"{sorted(t for ts in by_type.values() for t in ts)}")
+                return given
+            found = [t for n in names for t in by_type.get(n, [])]
+            if len(found) > 1:
+                raise ValueError(f"{path}: several {names[0]} topics {found}: choose one "
+                                 f"with {flag}")
+            return found[0] if found else None
+
+        self.image_topic = (pick(ROS_IMAGE, image_topic, "--image-topic")
+                            or pick(ROS_COMPRESSED, None, "--image-topic"))
+        if self.image_topic is None:
+            raise ValueError(f"{path}: no sensor_msgs/Image or CompressedImage topic")
+        self.imu_topic = pick(ROS_IMU, imu_topic, "--imu-topic")
+        self.mag_topic = pick(ROS_MAG, mag_topic, "--mag-topic")
+        self.has_gyro = self.imu_topic is not None or imu is not None
+        self.info_topic = pick(ROS_INFO, None, "--camera")
+        self._t0_ns: int | None = None
+        self._model: dict[str, Any] | None = None
+        self._size: tuple[int, int] | None = None
+        for topic, msg, _t_ns in self._decoded([self.image_topic] + (
+                [self.info_topic] if self.info_topic else []), limit=2):
+            if topic == self.info_topic and self._model is None and len(msg.k) == 9:
+                self._model = {"model": "pinhole", "width": int(msg.width),
+                               "height": int(msg.height),
+                               "K": np.asarray(msg.k, float).reshape(3, 3).tolist(),
+                               "D": [float(x) for x in msg.d][:5] or [0.0] * 5, "parity": 1}
+            elif topic == self.image_topic and self._size is None:
+                img = self._image(msg)
+                self._size = (int(img.shape[1]), int(img.shape[0]))
+        self._t0_ns = min((self._first_ns(t) for t in (self.image_topic, self.imu_topic,
+                                                       self.mag_topic) if t), default=0)
+        from adfusion.logs.writer import utc_iso
+
+        self.start_utc = utc_iso(_ns_datetime(self._t0_ns))
+
+    def _decoded(self, topics_: list[str], limit: int | None = None):
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        seen: dict[str, int] = {}
+        with open(self.path, "rb") as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            for _, channel, message, msg in reader.iter_decoded_messages(topics=topics_):
+                if limit is not None:
+                    seen[channel.topic] = seen.get(channel.topic, 0) + 1
+                    if seen[channel.topic] > limit:
+                        if all(seen.get(t, 0) > limit for t in topics_):
+                            return
+                        continue
+                yield channel.topic, msg, message.log_time
+
+    def _first_ns(self, topic: str) -> int:
+        for _, msg, t_ns in self._decoded([topic], limit=1):
+            return _stamp_ns(msg, t_ns)
+        return 2**63
+
+    def camera_model(self) -> dict[str, Any] | None:
+        return self._model
+
+    def image_size(self) -> tuple[int, int] | None:
+        return self._size
+
+    @staticmethod
+    def _image(msg) -> np.ndarray:
+        if hasattr(msg, "encoding"):  # sensor_msgs/Image
+            dtype = _ROS_ENCODINGS.get(msg.encoding)
+            if dtype is None:
+                raise ValueError(f"image encoding {msg.encoding!r} is not read (mono8, "
+                                 "mono16, rgb8, bgr8)")
+            data = np.frombuffer(bytes(msg.data), dtype=np.dtype(dtype).newbyteorder(
+                ">" if msg.is_bigendian else "<"))
+            row = msg.step // np.dtype(dtype).itemsize
+            img = data.reshape(msg.height, row)[:, : msg.width * max(1, row // msg.width)]
+            channels = row // msg.width if msg.width else 1
+            if channels > 1:
+                img = img.reshape(msg.height, msg.width, channels)[..., :3]
+                code = cv2.COLOR_RGB2GRAY if msg.encoding.startswith("rgb") else \
+                    cv2.COLOR_BGR2GRAY
+                return cv2.cvtColor(np.ascontiguousarray(img), code)
+            return np.ascontiguousarray(img[:, : msg.width].astype(dtype, copy=False))
+        img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise ValueError(f"cannot decode a {msg.format!r} CompressedImage")
+        return to_grey(img)
+
+    def __iter__(self) -> Iterator[Message]:
+        wanted = [t for t in (self.image_topic, self.imu_topic, self.mag_topic) if t]
+        sensors = _sensors(self.imu, self._problems)
+        return heapq.merge(sensors, self._messages(wanted), key=lambda m: m.t_s)
+
+    def _messages(self, wanted: list[str]) -> Iterator[Message]:
+        t0 = self._t0_ns
+        out = []
+        for topic, msg, t_ns in self._decoded(wanted):
+            t_s = (_stamp_ns(msg, t_ns) - t0) / 1e9
+            if topic == self.image_topic:
+                out.append(Message(t_s, topics.CAMERA_IMAGE, self._image(msg)))
+            elif topic == self.imu_topic:
+                w = msg.angular_velocity
+                out.append(Message(t_s, topics.GYRO, {"omega": [w.x, w.y, w.z]}))
+            else:
+                b = msg.magnetic_field
+                out.append(Message(t_s, topics.MAG, {"b_body": [1e9 * b.x, 1e9 * b.y,
+                                                                1e9 * b.z]}))
+            if len(out) >= 64:  # keep time order when stamps and log times disagree a little
+                out.sort(key=lambda m: m.t_s)
+                yield from out[:32]
+                out = out[32:]
+        out.sort(key=lambda m: m.t_s)
+        yield from out
+
+    @property
+    def problem(self) -> str | None:
+        return "; ".join(self._problems) or None
+
+
+def _stamp_ns(msg, log_time_ns: int) -> int:
+    stamp = getattr(getattr(msg, "header", None), "stamp", None)
+    if stamp is None:
+        return log_time_ns
+    ns = int(stamp.sec) * 10**9 + int(stamp.nanosec)
+    return ns if ns > 0 else log_time_ns
+
+
+def _ns_datetime(ns: int):
+    import datetime as dt
+
+    return dt.datetime(1970, 1, 1, tzinfo=dt.UTC) + dt.timedelta(microseconds=ns // 1000)
+
+
+VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".mpg", ".mpeg", ".m4v", ".webm", ".wmv")
+
+
+def open_input(path: str | os.PathLike[str], *, fps: float | None = None,
+               timestamps: str | os.PathLike[str] | None = None,
+               imu: str | os.PathLike[str] | None = None,
+               image_topic: str | None = None, imu_topic: str | None = None,
+               mag_topic: str | None = None) -> Source:
+    """The source for ``path``: a folder of images (or a rosbag2 folder), a ROS 2 bag in
+    MCAP, one of our MCAP logs, or a video file — with one-line errors naming the flag
+    that supplies what is missing."""
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    if p.is_dir():
+        if is_ros2_bag(p):
+            return Ros2BagInput(p, image_topic=image_topic, imu_topic=imu_topic,
+                                mag_topic=mag_topic, imu=imu)
+        return FolderInput(p, fps=fps, timestamps=timestamps, imu=imu)
+    if p.suffix.lower() == ".mcap":
+        if is_ros2_bag(p):
+            return Ros2BagInput(p, image_topic=image_topic, imu_topic=imu_topic,
+                                mag_topic=mag_topic, imu=imu)
+        if imu is not None:
+            raise ValueError(f"--imu {imu}: {path} is a log of ours, which holds its sensors")
+        return McapInput(p)
+    if p.suffix.lower() in VIDEO_SUFFIXES or p.suffix.lower() not in (".csv", ".json", ".yaml"):
+        return VideoInput(p, fps=fps, imu=imu)
+    raise ValueError(f"{path}: not an input replay reads (an MCAP log or ROS 2 bag, a folder "
+                     "of images, or a video file)")

@@ -31,8 +31,10 @@ from adfusion.starid.camera import Camera
 __all__ = ["DetectAhead", "EstimationStage", "Step", "TruthStage"]
 
 GYRO, MAG, TRUTH, FRAME, OTHER = "gyro", "mag", "truth", "frame", "other"
-_KINDS = {topics.GYRO: GYRO, topics.MAG: MAG, topics.TRUTH_STATE: TRUTH,
-          topics.CAMERA_IMAGE: FRAME, topics.CAMERA_CENTROIDS: FRAME}
+_KINDS = {topics.GYRO: (GYRO, 0), topics.MAG: (MAG, 0), topics.TRUTH_STATE: (TRUTH, 0),
+          **{topics.camera_topic(k, leaf): (FRAME, k) for k in range(topics.MAX_CAMERAS)
+             for leaf in ("image", "centroids")}}
+_OTHER = (OTHER, 0)
 
 
 @dataclass(slots=True)
@@ -45,6 +47,7 @@ class Step:
         used: the estimator took it (sensors; frames always).
         record: what the estimator did with a frame.
         truth_q: the latest truth ``q_body_icrs`` at a frame, if the input has truth.
+        head: the camera of a frame (0, or k for ``/camera{k}/...`` topics).
     """
 
     msg: Message
@@ -52,10 +55,12 @@ class Step:
     used: bool = False
     record: StepRecord | None = None
     truth_q: np.ndarray | None = None
+    head: int = 0
 
     @classmethod
     def of(cls, msg: Message) -> Step:
-        return cls(msg, _KINDS.get(msg.topic, OTHER))
+        kind, head = _KINDS.get(msg.topic, _OTHER)
+        return cls(msg, kind, head=head)
 
 
 class TruthStage:
@@ -77,10 +82,11 @@ class EstimationStage:
     (detected through the estimator's ``detect``) or centroids."""
 
     def __init__(self, estimator: Estimator, *, use_gyro: bool = True,
-                 use_mag: bool = True) -> None:
+                 use_mag: bool = True, cameras: dict[int, int] | None = None) -> None:
         self.est = estimator
         self.use_gyro = use_gyro
         self.use_mag = use_mag
+        self.cameras = cameras or {0: 0}  # the input's camera → the estimator's camera
 
     def __call__(self, step: Step) -> None:
         kind, msg = step.kind, step.msg
@@ -94,12 +100,17 @@ class EstimationStage:
                 self.est.step(msg.t_s, mag=(p["b_body"], p["b_ref_icrs"]))
                 step.used = True
         elif kind == FRAME:
-            if msg.topic == topics.CAMERA_IMAGE:
-                step.record = self.est.step(msg.t_s, frame=msg.payload)
+            camera = self.cameras.get(step.head)
+            if camera is None:  # a camera left out of this replay
+                step.kind = OTHER
+            elif isinstance(msg.payload, np.ndarray):
+                step.record = self.est.step(msg.t_s, frame=msg.payload, camera=camera)
+                step.used = True
             else:
                 step.record = self.est.step(
-                    msg.t_s, detections=np.asarray(msg.payload["xy"], dtype=np.float64))
-            step.used = True
+                    msg.t_s, detections=np.asarray(msg.payload["xy"], dtype=np.float64),
+                    camera=camera)
+                step.used = True
 
 
 class DetectAhead:
@@ -116,7 +127,9 @@ class DetectAhead:
 
     def __init__(self, camera: Camera | None = None, depth: int = 8) -> None:
         self.camera = camera
+        self.cameras: dict[str, Camera] = {}  # image topic → its camera (several cameras)
         self.depth = depth
+        self.detect_kwargs: dict = {}  # starid.detect's settings (e.g. sigma)
         self._worker = None
         self._keys: dict[int, int] = {}
         self._submitted = 0
@@ -148,16 +161,19 @@ class DetectAhead:
         try:
             for msg in messages:
                 buf.append(msg)
-                if msg.topic == topics.CAMERA_IMAGE:
+                camera = (self.cameras.get(msg.topic) if self.cameras else
+                          self.camera if msg.topic == topics.CAMERA_IMAGE else None)
+                if camera is not None:
                     if self._worker.ready():
                         key = self._submitted
                         self._submitted += 1
                         self._keys[id(msg.payload)] = key
-                        self._worker.submit(key, msg.payload, self.camera)
+                        self._worker.submit(key, msg.payload, camera, **self.detect_kwargs)
                     frames += 1
                 while frames > self.depth:
                     out = buf.popleft()
-                    frames -= out.topic == topics.CAMERA_IMAGE
+                    frames -= (out.topic in self.cameras if self.cameras
+                               else out.topic == topics.CAMERA_IMAGE)
                     yield out
             yield from buf
         finally:
@@ -168,5 +184,5 @@ class DetectAhead:
         if key is None or self._worker is None:  # not submitted (or not read through us)
             from adfusion.starid import detect
 
-            return detect(frame, camera)
+            return detect(frame, camera, **self.detect_kwargs)
         return self._worker.result(key)
