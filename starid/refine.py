@@ -107,13 +107,16 @@ class Refinement:
         cam, q = cam0, sol.q_cam_icrs
         radius_px, sigma_px, n_par = r_min, sigma0, 3
         trunc_px = r_min  # where the current pairs were cut off (radius or rejection)
+        n_cam = 0  # camera parameters fitted so far
         note = ""
         for it in range(8):
             if len(det) < 3:
                 return sol
             pix = cam0.pixel_scale_rad
-            if terms is not None and len(det) >= 4:
-                # while the matches settle, a small model; the data choose the final one
+            if terms is not None and len(det) >= 4 and it in (0, 2):
+                # while the matches settle, a small model (fitted twice: on the verified
+                # pairs, then on the widened set; in between the attitude alone is refitted);
+                # the data choose the final model below
                 quick = terms if terms != "auto" else (("focal", "k1") if len(det) >= 8
                                                        else ("focal",))
                 try:
@@ -123,15 +126,15 @@ class Refinement:
                     return sol
                 cam, q = fit.camera, fit.q_cam_icrs[0]
                 res_px = fit.residuals_px[0]
-                n_par = 3 + sum(2 if t in ("principal", "tangential") else 1
-                                for t in fit.terms)
+                n_cam = sum(2 if t in ("principal", "tangential") else 1 for t in fit.terms)
+                n_par = 3 + n_cam
             else:
                 b = cam.pixels_to_vectors(xy_all[det])
                 w = wahba_unit(b, self.vectors[cat], sigma0 * pix)
                 q = w.q_cam_icrs
                 pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.to_matrix(q).T)
                 res_px = pred - xy_all[det]
-                n_par = 3
+                n_par = 3 + (n_cam if terms is not None else 0)
             sigma_px = noise_from_residuals(res_px, trunc_px, n_par)
             if not math.isfinite(sigma_px):
                 sigma_px = sigma0

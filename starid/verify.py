@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from adfusion.starid import rotations as rot
 from adfusion.starid.attitude import wahba_unit
-from adfusion.starid.calibrate import fit_camera
+from adfusion.starid.calibrate import fit_camera_model
 from adfusion.starid.camera import Camera
 from adfusion.starid.nstar import chirality_of
 from adfusion.starid.solution import Candidate
@@ -200,8 +200,8 @@ class Verification:
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
         refit = False
         if self._fov_uncertain and len(det_i) >= 4:
-            cam = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
-                             try_mirror=False).camera
+            cam = fit_camera_model([(xy[det_i], self.vectors[cat_i])], cam, ("focal",),
+                                   q_cam_icrs=[rot.from_matrix(R)]).camera
             b_all = cam.pixels_to_vectors(xy)
             radius = self._match_radius_px() * cam.pixel_scale_rad
             sigma = self.centroid_sigma_px * cam.pixel_scale_rad
