@@ -256,7 +256,11 @@ class McapSource:
                  topic_map: Mapping[str, str] | None = None,
                  topics: Iterable[str] | None = None) -> None:
         self.reader = McapLogReader(path, topic_map=topic_map, topics=topics, warn=True)
-        self.problems: list[str] = [] if self.reader.problem is None else [str(self.reader.problem)]
+
+    @property
+    def problems(self) -> list[str]:
+        """Every problem the reader found so far (iteration can add a chunk's CRC failure)."""
+        return [str(p) for p in self.reader.problems]
 
     def __iter__(self) -> Iterator[Message]:
         return self.reader.messages()
