@@ -563,6 +563,27 @@ def _tangent_basis(
     return (e1x, e1y, e1z), (py * e1z - pz * e1y, pz * e1x - px * e1z, px * e1y - py * e1x)
 
 
+def _tangent_residual(
+    e1: tuple[float, float, float], e2: tuple[float, float, float],
+    p: tuple[float, float, float], b: tuple[float, float, float],
+) -> tuple[float, float]:  # fmt: skip
+    """Residual of the unit direction ``b`` against the prediction ``p`` in the tangent basis
+    (e1, e2) of ``p``: the log map, so its length is the angle between them.
+
+    Why not the plain projections (e1·b, e2·b): they are sin θ long, which is 0 again at
+    180° — an exactly reversed vector (a magnetometer of flipped polarity) would pass with
+    NIS 0. At θ = π the direction is undefined; any one of length π says "180° off".
+    """
+    y0 = e1[0] * b[0] + e1[1] * b[1] + e1[2] * b[2]
+    y1 = e2[0] * b[0] + e2[1] * b[1] + e2[2] * b[2]
+    sin_t = math.hypot(y0, y1)
+    cos_t = p[0] * b[0] + p[1] * b[1] + p[2] * b[2]
+    if sin_t < 1e-12:
+        return (y0, y1) if cos_t > 0.0 else (math.pi, 0.0)
+    scale = math.atan2(sin_t, cos_t) / sin_t
+    return y0 * scale, y1 * scale
+
+
 class MEKF(AttitudeFilter):
     """Multiplicative EKF: quaternion ``q_body_icrs`` and gyro bias, 6-state error covariance.
 
@@ -651,9 +672,9 @@ class MEKF(AttitudeFilter):
     ) -> UpdateResult:
         px, py, pz = _qrotate(self._q, rr)  # predicted direction b̂ = R(q̂) r
         (e1x, e1y, e1z), (e2x, e2y, e2z) = _tangent_basis(px, py, pz)
-        # b = Exp(δθ) b̂ ≈ b̂ + δθ × b̂, so e1·b = δθ·e2 and e2·b = −δθ·e1 (b̂ × e2 = −e1)
-        y0 = e1x * bm[0] + e1y * bm[1] + e1z * bm[2]
-        y1 = e2x * bm[0] + e2y * bm[1] + e2z * bm[2]
+        # b = Exp(δθ) b̂ ≈ b̂ + δθ × b̂, so e1·b = δθ·e2 and e2·b = −δθ·e1 (b̂ × e2 = −e1);
+        # taken through the log map, so that the residual's length is the angle (to 180°)
+        y0, y1 = _tangent_residual((e1x, e1y, e1z), (e2x, e2y, e2z), (px, py, pz), bm)
         h = self._h  # H (2×6); the bias columns stay zero
         h[0, 0], h[0, 1], h[0, 2], h[1, 0], h[1, 1], h[1, 2] = e2x, e2y, e2z, -e1x, -e1y, -e1z
         p = self._P
@@ -703,7 +724,7 @@ class MEKF(AttitudeFilter):
             q_i = _qnormalize(_qmul(_qexp(*dx[:3].tolist()), q_bar))
             px, py, pz = _qrotate(q_i, rr)
             e1, e2 = _tangent_basis(px, py, pz)
-            y = np.array([np.dot(e1, bm), np.dot(e2, bm)])
+            y = np.array(_tangent_residual(e1, e2, (px, py, pz), bm))
             h = np.zeros((2, 6))
             h[:, :3] = np.array([e2, [-e1[0], -e1[1], -e1[2]]]) @ jl
             k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r * np.eye(2))

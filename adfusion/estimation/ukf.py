@@ -55,6 +55,7 @@ from adfusion.estimation.mekf import (
     _qrotate,
     _symmetrize,
     _tangent_basis,
+    _tangent_residual,
     process_noise,
 )
 from adfusion.starid import rotations as rot
@@ -140,11 +141,13 @@ def _fx(
 def _hx_vector(
     s: Array, q_ref: tuple[float, ...], r: tuple[float, float, float],
     e1: tuple[float, float, float], e2: tuple[float, float, float],
+    p: tuple[float, float, float],
 ) -> Array:  # fmt: skip
-    """Predicted direction of one sigma point, in the tangent basis (e1, e2) of the mean."""
+    """Predicted direction of one sigma point, in the tangent basis (e1, e2) of the mean's
+    prediction ``p`` (through the log map, as the measurement)."""
     px, py, pz = s[:3].tolist()
-    bx, by, bz = _qrotate(_qmul(_grp_to_quat_f(px, py, pz), q_ref), r)
-    return np.array([e1[0] * bx + e1[1] * by + e1[2] * bz, e2[0] * bx + e2[1] * by + e2[2] * bz])
+    b = _qrotate(_qmul(_grp_to_quat_f(px, py, pz), q_ref), r)
+    return np.array(_tangent_residual(e1, e2, p, b))
 
 
 def _hx_attitude(s: Array) -> Array:
@@ -229,11 +232,11 @@ class UKF(AttitudeFilter):
     def _vector_update(
         self, bm: tuple[float, float, float], rr: tuple[float, float, float], sigma: float
     ) -> UpdateResult:
-        e1, e2 = _tangent_basis(*_qrotate(self._q, rr))
-        z = np.array([e1[0] * bm[0] + e1[1] * bm[1] + e1[2] * bm[2],
-                      e2[0] * bm[0] + e2[1] * bm[1] + e2[2] * bm[2]])  # fmt: skip
+        p = _qrotate(self._q, rr)
+        e1, e2 = _tangent_basis(*p)
+        z = np.array(_tangent_residual(e1, e2, p, bm))  # its length is the angle, to 180°
         return self._ut_update(z, (sigma * sigma) * self._R2, 2, _hx_vector,
-                               {"q_ref": self._q, "r": rr, "e1": e1, "e2": e2})  # fmt: skip
+                               {"q_ref": self._q, "r": rr, "e1": e1, "e2": e2, "p": p})
 
     def _attitude_update(self, qm: tuple[float, ...], cov: Array) -> UpdateResult:
         w, x, y, z = self._q
