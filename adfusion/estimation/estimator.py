@@ -212,10 +212,26 @@ class Estimator:
         (a :class:`starid.Detections` or an (N, 2) / (N, 3) array), taken at mid-exposure;
         ``exposure_s`` overrides the estimator's exposure for this frame.
         """
-        rec = StepRecord(t=float(t), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
+        try:
+            t = float(t)
+        except (TypeError, ValueError):
+            rec = StepRecord(t=float("nan"), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
+            rec.rejected.append(("time", f"not a number: {t!r}; all inputs of this step "
+                                         "ignored"))
+            return self._finish(rec)
+        rec = StepRecord(t=t, q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
         if not np.isfinite(t):
             rec.rejected.append(("time", f"non-finite time {t}"))
             return self._finish(rec)
+        if exposure_s is not None:
+            try:
+                exposure_s = float(exposure_s)
+            except (TypeError, ValueError):
+                exposure_s = float("nan")
+            if not (np.isfinite(exposure_s) and exposure_s >= 0):
+                rec.rejected.append(("camera", f"exposure_s must be a finite duration ≥ 0, "
+                                               f"got {exposure_s}; the frame is ignored"))
+                frame = detections = None
         if self.t is not None and t < self.t:
             rec.rejected.append(("time", f"time went backwards ({t} < {self.t}); "
                                          "all inputs of this step ignored"))

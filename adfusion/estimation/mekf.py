@@ -438,6 +438,8 @@ class AttitudeFilter:
     def search_cone_deg(self, k: float = 3.0) -> float:
         """k·σ of the attitude in degrees: ``k·sqrt(λmax(P[:3, :3]))`` — the radius of the
         cone a tracking star identification has to search around the predicted boresight."""
+        if not (math.isfinite(k) and k >= 0):
+            raise ValueError(f"search_cone_deg: k (sigmas) must be finite and ≥ 0, got {k}")
         lam = float(np.linalg.eigvalsh(self._cov()[:3, :3])[-1])
         return k * math.degrees(math.sqrt(max(lam, 0.0)))
 
