@@ -28,8 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import statistics
 import sys
 import time
@@ -43,6 +41,8 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from adfusion.starid.detect import detect
+
+from adfusion.bench.machine import machine_info
 
 try:
     import tetra3rs
@@ -131,23 +131,9 @@ def bench_frame(name: str, img: np.ndarray, rounds: int = 30, warmup: int = 3) -
 
 
 def _machine() -> dict[str, Any]:
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "logical_cpus": os.cpu_count(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "opencv": cv2.__version__,
-        "opencv_default_threads": cv2.getNumThreads(),
-        "tetra3rs": getattr(tetra3rs, "__version__", "installed") if tetra3rs else None,
-    }
+    return machine_info(extra={
+        "opencv": cv2.__version__, "opencv_default_threads": cv2.getNumThreads(),
+        "tetra3rs": getattr(tetra3rs, "__version__", "installed") if tetra3rs else None})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -189,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(report, indent=2))
         return 0
     m = report["machine"]
-    print(f"{m['cpu']}, {m['logical_cpus']} CPUs, OpenCV {m['opencv']}, numpy {m['numpy']}")
+    print(f"{m['cpu']}, {m['cores']} CPUs, OpenCV {m['opencv']}, numpy {m['numpy']}")
     cols = list(results[0]["ms"])
     print(f"{'frame':34s} " + " ".join(f"{c:>22s}" for c in cols) + "   n(ours) n(t3rs)")
     for r in results:

@@ -45,8 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import statistics
 import sys
 import time
@@ -59,16 +57,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from adfusion.starid import rotations as rot
 
-from adfusion.estimation.mekf import (
-    MEKF,
-    _qexp,
-    _qmul,
-    _qnormalize,
-    _qrotate,
-    _tangent_basis,
-    process_noise,
-    transition_matrix,
-)
+from adfusion.bench.machine import machine_info
+from adfusion.estimation.common import tangent_basis
+from adfusion.estimation.mekf import MEKF, process_noise, transition_matrix
 from adfusion.estimation.ukf import UKF
 
 try:
@@ -157,16 +148,17 @@ def _filterpy(d: dict[str, np.ndarray]) -> tuple[Step, Callable[[], np.ndarray]]
     def step(k: int) -> None:
         w = gyro[k] - st["b"]
         tx, ty, tz = (w * dt).tolist()
-        st["q"] = _qnormalize(_qmul(_qexp(-tx, -ty, -tz), st["q"]))
+        st["q"] = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(-tx, -ty, -tz), st["q"]))
         ekf.F = transition_matrix(w, dt)
         ekf.predict()
-        e1, e2 = _tangent_basis(*_qrotate(st["q"], tuple(ref[k].tolist())))
+        e1, e2 = tangent_basis(*rot.rotate_floats(st["q"], tuple(ref[k].tolist())))
         h = np.zeros((2, 6))
         h[0, :3], h[1, :3] = e2, (-e1[0], -e1[1], -e1[2])
         z = np.array([np.dot(e1, meas[k]), np.dot(e2, meas[k])])
         ekf.update(z, HJacobian=lambda _x: h, Hx=lambda x: h @ x, R=r2)
         dx = ekf.x.tolist()
-        st["q"] = _qnormalize(_qmul(_qexp(dx[0], dx[1], dx[2]), st["q"]))
+        step = rot.exp_map_floats(dx[0], dx[1], dx[2])
+        st["q"] = rot.normalize_floats(rot.hamilton(step, st["q"]))
         st["b"] = st["b"] + ekf.x[3:]
         ekf.x[:] = 0.0  # the reset: error state back to zero
 
@@ -224,9 +216,7 @@ def run(rounds: int = 3, steps: int = ORBIT_STEPS, seed: int = 1) -> dict[str, A
         "final_err_deg": {n: float(e[-1]) for n, e in err_deg.items()},
         "burn_in_steps": burn,
         "skipped": [] if AhrsEKF is not None else ["ahrs_ekf (ahrs not importable)"],
-        "machine": {"platform": platform.platform(), "processor": platform.processor(),
-                    "python": platform.python_version(), "numpy": np.__version__,
-                    "cpus": os.cpu_count(), "loadavg": list(os.getloadavg())},
+        "machine": machine_info(),
     }  # fmt: skip
 
 

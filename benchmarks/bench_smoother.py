@@ -16,7 +16,7 @@ filter and the smoother against the truth at the frame times:
 
 Usage (from the repository root; prints JSON)::
 
-    PYTHONPATH=. python benchmarks/bench_smoother.py [--runs 10] [--duration 60]
+    python benchmarks/bench_smoother.py [--runs 10] [--duration 60]
         [--nees-duration 20] [--no-render]
 
 Example:

@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 from pathlib import Path
 from typing import Any
@@ -41,6 +39,7 @@ from adfusion.starid import rotations as rot
 from adfusion.starid.solver import Prior, Solver
 
 from adfusion import starid
+from adfusion.bench.machine import machine_info
 from adfusion.bench.starid import frame_error_px
 from adfusion.estimation.estimator import Estimator
 
@@ -139,8 +138,7 @@ def run(duration_s: float = 10.0, rounds: int = 5, seed: int = 1) -> dict[str, A
         "scenario": f"oedipus(duration_s={duration_s}, seed={seed}), rendered + detect",
         "detections_median": float(np.median([len(f["xy"]) for f in frames])),
         "rounds": rounds,
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "python": platform.python_version(), "numpy": np.__version__},
+        "machine": machine_info(),
         "conditions": out,
     }
 

@@ -15,37 +15,10 @@ Example:
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
-
-
-def to_jsonable(value: Any) -> Any:
-    """Plain-Python copy of ``value``: numpy arrays → lists, numpy scalars → numbers, tuples →
-    lists, non-finite floats → ``None`` (JSON has no NaN; JavaScript's ``JSON.parse`` rejects it).
-
-    Example:
-        >>> import numpy as np
-        >>> to_jsonable({"q": np.array([1.0, 0.0, 0.0, 0.0]), "nis": float("nan")})
-        {'q': [1.0, 0.0, 0.0, 0.0], 'nis': None}
-    """
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, str | bool | int) or value is None:
-        return value
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind == "f" and not np.all(np.isfinite(value)):
-            return to_jsonable(value.astype(object).tolist())
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return to_jsonable(value.item())
-    if isinstance(value, Mapping):
-        return {str(k): to_jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [to_jsonable(v) for v in value]
-    raise TypeError(f"cannot write {type(value).__name__} as JSON: {value!r}")
+from adfusion.plain import json_default, to_jsonable
 
 
 def dumps(value: Any) -> str:
@@ -56,15 +29,9 @@ def dumps(value: Any) -> str:
     few records a frame; the copy cost ~0.15 ms of them). Both give the same text, except
     that dict keys ``True``/``False``/``None`` come out as JSON spells them."""
     try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False, default=_default)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, default=json_default)
     except ValueError:  # NaN or infinity: to_jsonable turns them into null
         return json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
-
-
-def _default(value: Any) -> Any:
-    if isinstance(value, np.ndarray | np.generic):
-        return value.tolist() if isinstance(value, np.ndarray) else value.item()
-    raise TypeError(f"cannot write {type(value).__name__} as JSON: {value!r}")
 
 
 def _parses_as_json(text: str) -> bool:

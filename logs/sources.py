@@ -36,12 +36,13 @@ from typing import Any
 
 import cv2
 import numpy as np
+from adfusion.logs import topics
 from adfusion.logs.message import Message
 from adfusion.logs.reader import McapLogReader, McapReadWarning
 
-IMAGE_TOPIC = "/camera/image"
-GYRO_TOPIC = "/imu/gyro"
-MAG_TOPIC = "/mag"
+IMAGE_TOPIC = topics.CAMERA_IMAGE
+GYRO_TOPIC = topics.GYRO
+MAG_TOPIC = topics.MAG
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg", ".bmp", ".pgm", ".pnm", ".fits")
 
 GYRO_COLUMNS = ("gyro_x", "gyro_y", "gyro_z")

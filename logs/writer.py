@@ -36,6 +36,7 @@ from typing import Any, Literal
 
 import numpy as np
 from adfusion.logs import foxglove as fg
+from adfusion.logs import topics
 from adfusion.logs.jsonio import dumps, encode_metadata
 from adfusion.logs.schemas import GENERIC, JSON_SCHEMAS
 from google.protobuf.message import Message as ProtoMessage
@@ -45,12 +46,10 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 ArrayLike = Any
 
-IMAGE_TOPIC = "/camera/image"
-ANNOTATIONS_TOPIC = "/camera/annotations"
-CALIBRATION_TOPIC = "/camera/calibration"
-TF_TOPIC = "/tf"
-ESTIMATE_POSE_TOPIC = "/estimate/pose"
-TRUTH_POSE_TOPIC = "/truth/pose"
+IMAGE_TOPIC = topics.CAMERA_IMAGE
+ANNOTATIONS_TOPIC = topics.CAMERA_ANNOTATIONS
+CALIBRATION_TOPIC = topics.CAMERA_CALIBRATION
+TF_TOPIC = topics.TF
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, None: CompressionType.NONE}

@@ -58,6 +58,8 @@ from adfusion.starid.camera import Camera
 from adfusion.starid.catalog import Catalog
 from numpy.typing import ArrayLike, NDArray
 
+from adfusion.plain import to_jsonable
+
 __all__ = [
     "KINDS",
     "Event",
@@ -136,20 +138,6 @@ def _seed_for(seed: int, stream: int, index: int = 0) -> int:
     return int(ss.generate_state(1)[0])
 
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, datetime):
-        return x.isoformat()
-    return x
-
-
 class Scenario:
     """A deterministic multi-sensor simulation (use :func:`oedipus` or :func:`leo`).
 
@@ -216,7 +204,7 @@ class Scenario:
         self.t_gyro, self._ns_gyro = _sample_times(duration_s, gyro_hz)
         self.t_mag, self._ns_mag = _sample_times(duration_s, mag_hz)
         self.t_frame, self._ns_frame = _sample_times(duration_s, fps)
-        self.config: dict[str, Any] = _jsonable({
+        self.config: dict[str, Any] = to_jsonable({
             "scenario": name,
             "seed": self.seed,
             "duration_s": self.duration_s,

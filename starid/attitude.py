@@ -19,7 +19,6 @@ Example:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -271,17 +270,8 @@ def _rotate_small(d: list[float], q: NDArray[np.float64]) -> NDArray[np.float64]
 def _exp_times(x: float, y: float, z: float, qw: float, qx: float, qy: float,
                qz: float) -> tuple[float, float, float, float]:
     """exp((x, y, z)) ⊗ q in plain floats, normalised (numpy's per-call overhead would
-    dominate at this size); small angles by the half-angle series."""
-    a2 = x * x + y * y + z * z
-    c, k = 1.0 - a2 / 8.0, 0.5 - a2 / 48.0  # next terms < 3e-19 below 1e-4 rad
-    if a2 > 1e-8:
-        a = math.sqrt(a2)
-        c, k = math.cos(0.5 * a), math.sin(0.5 * a) / a
-    x, y, z = k * x, k * y, k * z
-    w, u, v, t = (c * qw - x * qx - y * qy - z * qz, c * qx + x * qw + y * qz - z * qy,
-                  c * qy - x * qz + y * qw + z * qx, c * qz + x * qy - y * qx + z * qw)
-    n = 1.0 / math.sqrt(w * w + u * u + v * v + t * t)
-    return w * n, u * n, v * n, t * n
+    dominate at this size)."""
+    return rot.normalize_floats(rot.hamilton(rot.exp_map_floats(x, y, z), (qw, qx, qy, qz)))
 
 
 def _any_tangent(b: NDArray[np.float64]) -> NDArray[np.float64]:

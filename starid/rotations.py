@@ -44,18 +44,23 @@ __all__ = [
     "conjugate",
     "cross",
     "exp_map",
+    "exp_map_floats",
     "from_gtsam",
     "from_matrix",
     "from_scipy",
     "hamilton",
     "inverse",
     "log_map",
+    "log_map_floats",
     "multiply",
     "normalize",
+    "normalize_floats",
     "q_cam_icrs_from_radec_roll",
     "radec_roll_from_q_cam_icrs",
     "radec_to_vector",
+    "right_matrix",
     "rotate",
+    "rotate_floats",
     "skew",
     "small_angle",
     "to_gtsam",
@@ -145,6 +150,69 @@ def hamilton(p, q) -> tuple:
             pw * qx + px * qw + py * qz - pz * qy,
             pw * qy - px * qz + py * qw + pz * qx,
             pw * qz + px * qy - py * qx + pz * qw)  # fmt: skip
+
+
+# --- the float fast path (the filters' and tracking's hot path: no array per call) -------
+
+
+def exp_map_floats(tx: float, ty: float, tz: float) -> tuple[float, float, float, float]:
+    """Quaternion of the rotation vector (tx, ty, tz); exact, Taylor branch near zero.
+
+    >>> [round(c, 6) for c in exp_map_floats(0.0, 0.0, math.pi / 2)]
+    [0.707107, 0.0, 0.0, 0.707107]
+    """
+    n = math.sqrt(tx * tx + ty * ty + tz * tz)
+    if n < 1e-6:
+        k = 0.5 - n * n / 48.0
+        return (1.0 - n * n / 8.0, k * tx, k * ty, k * tz)
+    k = math.sin(0.5 * n) / n
+    return (math.cos(0.5 * n), k * tx, k * ty, k * tz)
+
+
+def normalize_floats(q: tuple[float, ...]) -> tuple[float, float, float, float]:
+    """Unit quaternion with w ≥ 0 (the stored sign convention, so a state never flips)."""
+    w, x, y, z = q
+    s = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:  # keep the stored sign convention (w ≥ 0) so the state never flips
+        s = -s
+    return (w * s, x * s, y * s, z * s)
+
+
+def log_map_floats(q: tuple[float, ...]) -> tuple[float, float, float]:
+    """Rotation vector (angle ≤ π) of a unit quaternion."""
+    w, x, y, z = q
+    if w < 0.0:
+        w, x, y, z = -w, -x, -y, -z
+    s = math.sqrt(x * x + y * y + z * z)
+    if s < 1e-9:
+        k = 2.0 / w * (1.0 + s * s / (6.0 * w * w))
+    else:
+        k = 2.0 * math.atan2(s, w) / s
+    return (k * x, k * y, k * z)
+
+
+def rotate_floats(q: tuple[float, ...],
+                  v: tuple[float, float, float]) -> tuple[float, float, float]:
+    """R(q) v for a unit quaternion: v + 2w (u × v) + 2 u × (u × v)."""
+    w, x, y, z = q
+    vx, vy, vz = v
+    tx = 2.0 * (y * vz - z * vy)
+    ty = 2.0 * (z * vx - x * vz)
+    tz = 2.0 * (x * vy - y * vx)
+    return (vx + w * tx + y * tz - z * ty,
+            vy + w * ty + z * tx - x * tz,
+            vz + w * tz + x * ty - y * tx)  # fmt: skip
+
+
+def right_matrix(q: tuple[float, ...]) -> Array:
+    """4×4 M with ``p ⊗ q = M @ p`` (right multiplication by a fixed quaternion).
+
+    >>> p, q = (0.0, 1.0, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0)
+    >>> (right_matrix(q) @ np.array(p)).tolist() == list(hamilton(p, q))
+    True
+    """
+    w, x, y, z = q
+    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
 
 
 def conjugate(q: ArrayLike) -> Array:

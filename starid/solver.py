@@ -61,6 +61,7 @@ from adfusion.starid.nstar import (
 )
 from adfusion.starid.search_order import combination_order
 from adfusion.starid.verify import DENSITY_SAFETY, binomial_tail
+from adfusion.starid.view import stars_in_view
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
@@ -378,20 +379,21 @@ class Solver:
         self._quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)
         return solved
 
-    def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-        """Pixel positions and catalogue ids of the catalogue stars inside the frame at an
-        attitude (``q_cam_icrs``). Cheap frame after frame: the solver keeps the last
-        catalogue cone.
+    def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """Catalogue ids and pixel positions of the catalogue stars inside the frame at an
+        attitude (``q_cam_icrs``), brightest first: :func:`adfusion.starid.view.stars_in_view`
+        for this solver's catalogue and camera, with ids instead of row indices.
 
         >>> from adfusion import starid
         >>> from adfusion.starid import rotations as rot
         >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
         ...                   starid.Camera.pinhole(1024, 768, 15.0))
-        >>> xy, ids = s.stars_in_view(rot.q_cam_icrs_from_radec_roll(0.2, 1.0, 0.0))
+        >>> ids, xy = s.stars_in_view(rot.q_cam_icrs_from_radec_roll(0.2, 1.0, 0.0))
         >>> len(xy) == len(ids) > 0
         True
         """
-        return self._project(rot.normalize(np.asarray(q_cam_icrs, np.float64)), self.camera)
+        idx, xy = stars_in_view(self.catalog, self.camera, q_cam_icrs)
+        return self.catalog.ids[idx], xy
 
     # --- internals ----------------------------------------------------------------------
 

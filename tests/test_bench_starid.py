@@ -70,7 +70,7 @@ def test_table_printed(smoke: tuple[dict, str, str]) -> None:
 
 def test_frames_are_reproducible_and_shared() -> None:
     from adfusion import starid
-    cat = bench._catalog(6.0, 2025.0)
+    cat = bench.load_catalog(6.0, 2025.0)
     cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
     clean = bench.CONDITIONS["clean"].resolved(0.1, 6.0)
     false8 = bench.CONDITIONS["false8"].resolved(0.1, 6.0)

@@ -90,16 +90,16 @@ def test_streaked_frame_scored_along_the_exposure() -> None:
 
     from adfusion import starid
 
-    cat = bs._catalog(5.0, 2025.0)
+    cat = bs.load_catalog(5.0, 2025.0)
     cam = starid.Camera.pinhole(512, 384, fov_x_deg=15.0)
     f = bs.render_frame_for(cat, cam, bs.Condition("r", rate_deg_s=5.0), seed=0, index=2)
     q_end = rot.multiply(rot.exp_map(-f.omega_cam_rad_s * f.exposure_s / 2), f.q_cam_icrs)
-    t = bs.score(f, bs._Outcome(True, q_end, 0.001), cam, 5.0)
+    t = bs.score(f, bs.Outcome(True, q_end, 0.001), cam, 5.0)
     assert t.verdict == "correct" and t.error_px > 5.0 and t.error_path_px < 0.5
     a = bs.aggregate([t])
     assert a["n_off_mid_exposure"] == 1 and a["n_wrong"] == 0
     q_far = rot.multiply(rot.exp_map([0.0, 0.0, 0.05]), f.q_cam_icrs)  # 2.9° of roll
-    assert bs.score(f, bs._Outcome(True, q_far, 0.001), cam, 5.0).verdict == "wrong"
+    assert bs.score(f, bs.Outcome(True, q_far, 0.001), cam, 5.0).verdict == "wrong"
 
 
 def test_tables_and_plots(doc: dict, tmp_path: Path) -> None:

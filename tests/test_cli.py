@@ -17,6 +17,19 @@ def test_help_lists_the_commands(capsys):
         assert cmd in out
 
 
+def test_help_imports_no_numpy():
+    """``adfusion --help`` in a fresh interpreter loads neither numpy nor OpenCV."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom adfusion.app.cli import main\n"
+            "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('numpy', 'cv2', 'scipy') if m in sys.modules))")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=60, check=True)
+    assert p.stdout.strip().splitlines()[-1] == "[]"
+
+
 def test_catalog_prints_renken_table(capsys):
     assert main(["catalog", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)

@@ -168,14 +168,14 @@ def test_stars_in_view_are_counted_as_stars_in_view_counts_them(mag_limit):
     from adfusion.starid import Camera, Catalog, Solver
     from adfusion.starid import rotations as rot
 
-    from adfusion.app.pipeline import ReplaySummary, _InViewCounter
+    from adfusion.app.replay.sinks import InViewCounter, ReplaySummary
 
     solver = Solver(Catalog.hipparcos(mag_limit=mag_limit),
                     Camera.pinhole(512, 480, 12.0), cache=False)
     q_body_cam = rot.normalize(np.array([0.9, 0.1, -0.2, 0.3]))
     rng = np.random.default_rng(7)
     truth = rot.normalize(rng.normal(size=(400, 4)))
-    counter = _InViewCounter(solver, q_body_cam)
+    counter = InViewCounter(solver, q_body_cam)
     ref = []
     for k, q in enumerate(truth):
         counter.add(q, k % 2 == 0)

@@ -19,9 +19,10 @@ import math
 import numpy as np
 import pytest
 from adfusion.sensors.dynamics import simulate_rigid_body
+from adfusion.starid import rotations as rot
 from scipy.linalg import expm
 
-from adfusion.estimation.mekf import UpdateResult, _qexp, _qlog, _qmul
+from adfusion.estimation.mekf import UpdateResult
 from adfusion.estimation.ratefilter import RateMEKF, rate_process_noise, rate_transition_matrix
 
 INERTIA = np.diag([40.0, 41.0, 4.0])
@@ -36,11 +37,11 @@ WALK = 0.025  # rad/s^1.5: σ² ≈ |ω̇|² Δt with |ω̇| ≈ 0.14 rad/s²
 def _err(q_true: np.ndarray, q_est: np.ndarray) -> np.ndarray:
     """δθ with R_true = Exp(δθ) R_est (body frame), rad."""
     w, x, y, z = (float(v) for v in q_est)
-    return np.array(_qlog(_qmul(tuple(q_true), (w, -x, -y, -z))))
+    return np.array(rot.log_map_floats(rot.hamilton(tuple(q_true), (w, -x, -y, -z))))
 
 
 def _noisy(q: np.ndarray, rng: np.random.Generator) -> tuple[float, ...]:
-    return _qmul(_qexp(*rng.normal(0.0, SIGMA_FIX, 3)), tuple(q))
+    return rot.hamilton(rot.exp_map_floats(*rng.normal(0.0, SIGMA_FIX, 3)), tuple(q))
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +91,7 @@ def test_one_step_prediction_within_tracking_cone(run: dict) -> None:
 def test_rejects_wrong_fix_with_reason(run: dict) -> None:
     f: RateMEKF = run["filter"]
     q, w, p = f.q_body_icrs, f.omega_rad_s, f.P
-    wrong = _qmul(_qexp(math.radians(20.0), 0.0, 0.0), tuple(q))
+    wrong = rot.hamilton(rot.exp_map_floats(math.radians(20.0), 0.0, 0.0), tuple(q))
     r = f.update_attitude(wrong, COV_FIX)
     assert isinstance(r, UpdateResult)
     assert not r.accepted and r.reason.startswith("NIS") and r.dof == 3
@@ -123,7 +124,7 @@ def test_propagation_exact_for_constant_rate() -> None:
     for _ in range(50):
         f.propagate(0.02)
     # R_body_icrs(t) = Exp(−ω t) for constant body rate
-    expected = np.array(_qexp(*(-w * 1.0)))
+    expected = np.array(rot.exp_map_floats(*(-w * 1.0)))
     assert np.degrees(np.linalg.norm(_err(expected, f.q_body_icrs))) < 1e-10
 
 

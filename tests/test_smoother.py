@@ -18,10 +18,10 @@ from adfusion.estimation.faults import WrongMatchInjector
 from adfusion.estimation.smoother import (
     SmootherError,
     SmootherInput,
-    _wnoa_factor,
     calibrate_star_noise,
     smooth,
 )
+from adfusion.estimation.smoother.factors import wnoa_factor
 
 # --- pieces ------------------------------------------------------------------------------
 
@@ -30,7 +30,7 @@ def test_constant_rate_factor_jacobians_match_finite_differences():
     rng = np.random.default_rng(0)
     keys = [gtsam.symbol("r", 0), gtsam.symbol("w", 0), gtsam.symbol("r", 1),
             gtsam.symbol("w", 1)]
-    f = _wnoa_factor(keys, 1 / 30, 1e-4)
+    f = wnoa_factor(keys, 1 / 30, 1e-4)
     v = gtsam.Values()
     v.insert(keys[0], gtsam.Rot3.Expmap(rng.normal(0, 1, 3)))
     v.insert(keys[1], np.array([0.1, -0.05, 3.1]))

@@ -84,7 +84,7 @@ def test_tracking_on_rendered_streaks_accepts_no_wrong_attitude():
     cond = SWEEPS["rate_deg_s"].condition(10.0).resolved(0.1, 6.0, mag_noise=0.1,
                                                            fov_deg=15.0)
     cam = bs.camera_for(cond, 1024, 768, 15.0)
-    cat = bs._catalog(6.0, 2025.0)
+    cat = bs.load_catalog(6.0, 2025.0)
     solver = bs.solver_for(6.0, 0.1, cam)
     verdicts = []
     for index in [139, 163, 203, 223, 346, *range(12)]:
@@ -92,7 +92,7 @@ def test_tracking_on_rendered_streaks_accepts_no_wrong_attitude():
         prior = bs.tracking_prior(frame, 0.1)
         assert prior.smear_cam_rad is not None
         sol = solver.solve(frame.xy, prior=prior)
-        outcome = bs._Outcome(sol.ok, sol.q_cam_icrs, sol.time_s, sol.reason)
+        outcome = bs.Outcome(sol.ok, sol.q_cam_icrs, sol.time_s, sol.reason)
         verdicts.append(bs.score(frame, outcome, cam, 5.0, cat).verdict)
     assert "wrong" not in verdicts
     assert verdicts.count("correct") >= 5

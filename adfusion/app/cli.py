@@ -18,7 +18,9 @@ import time
 from collections.abc import Sequence
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(bench: bool = True) -> argparse.ArgumentParser:
+    """The whole command line. ``bench=False`` leaves out the benchmark commands' own
+    arguments, whose modules import numpy and OpenCV (``adfusion --help`` stays instant)."""
     p = argparse.ArgumentParser(
         prog="adfusion",
         description="Star-camera attitude determination: detection, identification, fusion.",
@@ -92,15 +94,15 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="benchmarks against the peers (tetra3rs, cedar-solve)")
     bsub = b.add_subparsers(dest="bench", metavar="BENCH", required=True)
     bs = bsub.add_parser("starid", help="lost-in-space identification: ours vs the peers")
-    from adfusion.bench import starid as bench_starid
-
-    bench_starid.add_arguments(bs)
-    bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
     sw = bsub.add_parser("sweep", help="robustness sweeps vs the peers (dask campaigns)")
-    from adfusion.bench import sweep as bench_sweep
+    if bench:
+        from adfusion.bench import starid as bench_starid
+        from adfusion.bench import sweep as bench_sweep
 
-    bench_sweep.add_arguments(sw)
-    sw.set_defaults(func=bench_sweep.cli)
+        bench_starid.add_arguments(bs)
+        bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
+        bench_sweep.add_arguments(sw)
+        sw.set_defaults(func=bench_sweep.cli)
 
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -110,7 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as e:
@@ -279,7 +282,7 @@ def _scenario(name: str, duration: float, seed: int, render: bool):
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from adfusion.app.pipeline import simulate
+    from adfusion.app.replay import simulate
 
     if not args.duration > 0:
         raise ValueError("--duration must be positive")
@@ -292,7 +295,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from adfusion.app.pipeline import replay
+    from adfusion.app.replay import replay
 
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
@@ -313,7 +316,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from adfusion.app.pipeline import replay, simulate
+    from adfusion.app.replay import replay, simulate
     from adfusion.app.report import report
 
     out = Path(args.output)

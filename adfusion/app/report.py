@@ -9,7 +9,7 @@ smoother's history too: its error and 3σ bound, and its bias, are drawn next to
 Example:
     >>> import os, tempfile
     >>> from adfusion.sensors.scenarios import oedipus
-    >>> from adfusion.app.pipeline import simulate, replay
+    >>> from adfusion.app.replay import simulate, replay
     >>> from adfusion.app.report import report
     >>> d = tempfile.mkdtemp()
     >>> _ = simulate(oedipus(duration_s=0.5, render=False), os.path.join(d, "s.mcap"))

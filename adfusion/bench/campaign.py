@@ -55,6 +55,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from adfusion.starid.cache import source_digest
+
 __all__ = [
     "MEASURED_KEYS",
     "CampaignError",
@@ -152,27 +154,6 @@ def fingerprint(fn: Callable[..., Any], task: Task) -> str:
     h = hashlib.sha256(f"{fn.__module__}.{fn.__qualname__}\0{task.key}\0{task.payload!r}"
                        .encode())
     return h.hexdigest()[:24]
-
-
-def source_digest(*modules: str) -> str:
-    """A digest of the Python sources of ``modules`` (packages: all their ``.py`` files).
-    Put it into task payloads so that a partial file is not reused after the code changed.
-
-    >>> len(source_digest("adfusion.starid", "adfusion.bench.campaign"))
-    16
-    """
-    import importlib.util
-
-    h = hashlib.sha256()
-    for name in modules:
-        spec = importlib.util.find_spec(name)
-        if spec is None or spec.origin is None:
-            raise ValueError(f"no module {name!r}")
-        origin = Path(spec.origin)
-        files = sorted(origin.parent.glob("*.py")) if origin.name == "__init__.py" else [origin]
-        for f in files:
-            h.update(f"{name}/{f.name}\0".encode() + f.read_bytes())
-    return h.hexdigest()[:16]
 
 
 # --- worker-side state ------------------------------------------------------------------

@@ -78,7 +78,6 @@ import argparse
 import contextlib
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -93,6 +92,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from adfusion.bench.machine import code_version, machine_info
 
 __all__ = [
     "CONDITIONS",
@@ -388,7 +389,7 @@ def _time_stats(t_s: Sequence[float]) -> dict[str, float | None]:
 
 
 @dataclass
-class _Outcome:
+class Outcome:
     ok: bool
     q: NDArray[np.float64] | None
     time_s: float
@@ -456,7 +457,7 @@ class Trial:
                 self.error_sigmas]
 
 
-def score(frame: Frame, outcome: _Outcome, camera, tol_px: float, catalog=None) -> Trial:
+def score(frame: Frame, outcome: Outcome, camera, tol_px: float, catalog=None) -> Trial:
     """Judge one outcome against the frame's truth: correct when the frame's corners and
     centre move by less than ``tol_px`` (:func:`frame_error_px`).
 
@@ -477,7 +478,7 @@ def score(frame: Frame, outcome: _Outcome, camera, tol_px: float, catalog=None) 
     >>> from adfusion import starid
     >>> cam = starid.Camera.pinhole(1024, 768, fov_x_deg=15.0)
     >>> f = Frame("x", 0, random_attitude(0, 0), np.zeros((5, 2)), np.arange(5), 5)
-    >>> score(f, _Outcome(True, f.q_cam_icrs, 0.001), cam, 5.0).verdict
+    >>> score(f, Outcome(True, f.q_cam_icrs, 0.001), cam, 5.0).verdict
     'correct'
     """
     from adfusion.starid import rotations as rot
@@ -530,7 +531,7 @@ def _stars_right(frame: Frame, matches: Sequence[tuple[int, int]], camera,
     return float(np.mean(best <= 2.0))
 
 
-def summarize(frames: Sequence[Frame], outcomes: Sequence[_Outcome], camera, tol_px: float,
+def summarize(frames: Sequence[Frame], outcomes: Sequence[Outcome], camera, tol_px: float,
               list_max: int = 50, per_frame: bool = False) -> dict[str, Any]:
     """Availability, error rate (+ 95 % bound), times and the frames worth a look."""
     return aggregate([score(f, o, camera, tol_px)
@@ -679,13 +680,13 @@ def peer_match_max_error(sigma_px: float, width: int) -> float | None:
 # --- solver adapters ---------------------------------------------------------------------
 
 
-class _Adapter:
+class Adapter:
     name = ""
 
     def setup(self, cond: Condition, camera) -> None:
         """Prepare for a (resolved) condition seen by ``camera``: catalogue, database, …"""
 
-    def solve(self, frame: Frame) -> _Outcome:
+    def solve(self, frame: Frame) -> Outcome:
         raise NotImplementedError
 
     def info(self) -> dict[str, Any]:
@@ -699,7 +700,7 @@ class _Adapter:
         pass
 
 
-_SOLVERS: dict[tuple[Any, ...], Any] = {}
+SOLVERS: dict[tuple[Any, ...], Any] = {}
 
 
 def solver_for(mag_limit: float, sigma_px: float, camera, epoch: float = 2025.0):
@@ -713,13 +714,13 @@ def solver_for(mag_limit: float, sigma_px: float, camera, epoch: float = 2025.0)
     sigma = max(0.5, float(sigma_px))
     key = (float(mag_limit), sigma, camera.width, camera.height, round(camera.fov_x_deg, 9),
            float(epoch))
-    if key not in _SOLVERS:
-        _SOLVERS[key] = Solver(_catalog(float(mag_limit), epoch), camera,
+    if key not in SOLVERS:
+        SOLVERS[key] = Solver(load_catalog(float(mag_limit), epoch), camera,
                                centroid_sigma_px=sigma)
-    return _SOLVERS[key]
+    return SOLVERS[key]
 
 
-class _Ours(_Adapter):
+class _Ours(Adapter):
     name = "ours"
 
     def __init__(self, cfg: BenchConfig, camera=None) -> None:
@@ -756,16 +757,16 @@ class _Ours(_Adapter):
     def _prior(self, frame: Frame):
         return None
 
-    def solve(self, frame: Frame) -> _Outcome:
+    def solve(self, frame: Frame) -> Outcome:
         assert self.solver is not None
         prior = self._prior(frame)
         t0 = time.perf_counter()
         try:
             sol = self.solver.solve(frame.xy, prior=prior)
         except Exception as e:  # a crash is a finding, not a reason to stop the run
-            return _Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
+            return Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
         dt = time.perf_counter() - t0
-        return _Outcome(bool(sol.ok), sol.q_cam_icrs, dt, sol.reason, sol.time_s, sol.matches,
+        return Outcome(bool(sol.ok), sol.q_cam_icrs, dt, sol.reason, sol.time_s, sol.matches,
                         sol.covariance)
 
     def info(self) -> dict[str, Any]:
@@ -813,7 +814,7 @@ class _OursTracking(_Ours):
         return {**self._params, "prior_sigma_deg": self.sigma_deg}
 
 
-class _Tetra3rs(_Adapter):
+class _Tetra3rs(Adapter):
     name = "tetra3rs"
 
     def __init__(self, cfg: BenchConfig, camera, cache: Path) -> None:
@@ -878,19 +879,19 @@ class _Tetra3rs(_Adapter):
         """Our pixel centres → tetra3rs (x, y) from the geometric image centre."""
         return np.ascontiguousarray(xy - self.centre)
 
-    def solve(self, frame: Frame) -> _Outcome:
+    def solve(self, frame: Frame) -> Outcome:
         assert self.db is not None
         c = self.to_peer(frame.xy)
         t0 = time.perf_counter()
         try:
             r = self.db.solve_from_centroids(c, **self.kw)
         except Exception as e:
-            return _Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
+            return Outcome(False, None, time.perf_counter() - t0, f"exception: {e!r}")
         dt = time.perf_counter() - t0
         if not r:
-            return _Outcome(False, None, dt, str(r.status), r.solve_time_ms / 1e3)
+            return Outcome(False, None, dt, str(r.status), r.solve_time_ms / 1e3)
         q = np.asarray(r.quaternion, dtype=np.float64)  # already q_cam_icrs (checked)
-        return _Outcome(True, q / np.linalg.norm(q), dt, "", r.solve_time_ms / 1e3)
+        return Outcome(True, q / np.linalg.norm(q), dt, "", r.solve_time_ms / 1e3)
 
     def info(self) -> dict[str, Any]:
         return {"status": "ok", "version": self.t3.__version__, "databases": self._db_info}
@@ -967,7 +968,7 @@ def ensure_cedar_venv(cache: Path, timeout_s: float = 900.0) -> Path:
     return py
 
 
-class _Cedar(_Adapter):
+class _Cedar(Adapter):
     name = "cedar"
 
     def __init__(self, cfg: BenchConfig, camera, cache: Path) -> None:
@@ -1004,12 +1005,12 @@ class _Cedar(_Adapter):
         """Our pixel centres → tetra3 (y, x) from the top-left corner of the image."""
         return xy[:, ::-1] + 0.5
 
-    def solve(self, frame: Frame) -> _Outcome:
+    def solve(self, frame: Frame) -> Outcome:
         from adfusion.starid import rotations as rot
 
         assert self.proc.stdin is not None
         if self._dead:
-            return _Outcome(False, None, 0.0, f"error: {self._dead}")
+            return Outcome(False, None, 0.0, f"error: {self._dead}")
         self._n += 1
         msg = {"id": self._n, "yx": self.to_peer(frame.xy).tolist(),
                "size": [self.camera.height, self.camera.width], "kw": self.kw}
@@ -1019,16 +1020,16 @@ class _Cedar(_Adapter):
             r = self._read()
         except (OSError, RuntimeError, json.JSONDecodeError) as e:
             self._dead = f"cedar worker died: {e}"
-            return _Outcome(False, None, 0.0, f"error: {self._dead}")
+            return Outcome(False, None, 0.0, f"error: {self._dead}")
         if r.get("id") != self._n:
             raise RuntimeError(f"cedar worker out of step: sent {self._n}, got {r.get('id')}")
         status = _CEDAR_STATUS.get(r["status"], str(r["status"]))
         own = None if r["T_solve"] is None else r["T_solve"] / 1e3
         if r["status"] != 1 or r["RA"] is None:
-            return _Outcome(False, None, r["t_s"], status + (f": {r['error']}" if r["error"]
+            return Outcome(False, None, r["t_s"], status + (f": {r['error']}" if r["error"]
                                                              else ""), own)
         q = rot.q_cam_icrs_from_radec_roll(*np.radians([r["RA"], r["Dec"], -r["Roll"]]))
-        return _Outcome(True, q, r["t_s"], "", own)
+        return Outcome(True, q, r["t_s"], "", own)
 
     def info(self) -> dict[str, Any]:
         return {"status": "ok", "version": self.hello.get("version"),
@@ -1052,7 +1053,7 @@ class _Cedar(_Adapter):
 _CATALOGS: dict[tuple[float, float], Any] = {}
 
 
-def _catalog(mag_limit: float, epoch: float):
+def load_catalog(mag_limit: float, epoch: float):
     from adfusion.starid.catalog import Catalog
 
     key = (mag_limit, epoch)
@@ -1061,7 +1062,7 @@ def _catalog(mag_limit: float, epoch: float):
     return _CATALOGS[key]
 
 
-def _cache_root(cfg: BenchConfig) -> tuple[Path, tempfile.TemporaryDirectory | None]:
+def cache_root(cfg: BenchConfig) -> tuple[Path, tempfile.TemporaryDirectory | None]:
     if cfg.cache_dir:
         p = Path(cfg.cache_dir).expanduser()
         p.mkdir(parents=True, exist_ok=True)
@@ -1078,41 +1079,7 @@ def _cache_root(cfg: BenchConfig) -> tuple[Path, tempfile.TemporaryDirectory | N
 # --- the run -----------------------------------------------------------------------------
 
 
-def _machine() -> dict[str, Any]:
-    cpu = platform.processor() or ""
-    with contextlib.suppress(OSError):
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    return {"cpu": cpu, "cores": os.cpu_count(), "system": platform.platform(),
-            "python": platform.python_version(), "numpy": np.__version__}
-
-
-def _code_version() -> dict[str, Any]:
-    """Git commit of the checkout and the sha-256 of starid's sources (the tree may be dirty)."""
-    import hashlib
-
-    from adfusion import starid
-    root = Path(starid.__file__).resolve().parent
-    h = hashlib.sha256()
-    for f in sorted(root.glob("*.py")):
-        h.update(f.name.encode() + f.read_bytes())
-    out: dict[str, Any] = {"starid_sources_sha256": h.hexdigest()[:16], "git_commit": None,
-                           "git_dirty": None}
-    with contextlib.suppress(OSError, subprocess.SubprocessError):
-        git = ["git", "-C", str(root.parent)]
-        rev = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, timeout=5, check=False)
-        if rev.returncode == 0:
-            out["git_commit"] = rev.stdout.strip()
-            st = subprocess.run([*git, "status", "--porcelain", "--", "starid"],
-                                capture_output=True, text=True, timeout=5, check=False)
-            out["git_dirty"] = bool(st.stdout.strip())
-    return out
-
-
-def _conversion_check(adapters: Sequence[_Adapter], cfg: BenchConfig, camera,
+def conversion_check(adapters: Sequence[Adapter], cfg: BenchConfig, camera,
                       n: int = 3) -> dict[str, dict[str, Any]]:
     """Noise-free frames at the base settings: every solver's error must be ≈ 0.
 
@@ -1121,7 +1088,7 @@ def _conversion_check(adapters: Sequence[_Adapter], cfg: BenchConfig, camera,
     from adfusion.starid import rotations as rot
 
     cond = Condition("conversion-check", sigma_px=0.0, mag_limit=cfg.mag_limit)
-    cat = _catalog(cfg.mag_limit, cfg.epoch)
+    cat = load_catalog(cfg.mag_limit, cfg.epoch)
     frames = [make_frame(cat, camera, cond, seed=cfg.seed + 10_007, index=i, mag_noise=0.0)
               for i in range(n)]
     out: dict[str, dict[str, Any]] = {}
@@ -1139,9 +1106,9 @@ def _conversion_check(adapters: Sequence[_Adapter], cfg: BenchConfig, camera,
     return out
 
 
-def _make_adapters(cfg: BenchConfig, camera, cache: Path) -> tuple[list[_Adapter],
+def make_adapters(cfg: BenchConfig, camera, cache: Path) -> tuple[list[Adapter],
                                                                      dict[str, Any]]:
-    adapters: list[_Adapter] = []
+    adapters: list[Adapter] = []
     skipped: dict[str, Any] = {}
     for name in cfg.solvers:
         try:
@@ -1182,22 +1149,22 @@ def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
         raise ValueError("frames must be ≥ 1")
     t_start = time.perf_counter()
     camera = starid.Camera.pinhole(cfg.width, cfg.height, fov_x_deg=cfg.fov_deg)
-    cache, tmp = _cache_root(cfg)
-    adapters, skipped = _make_adapters(cfg, camera, cache)
+    cache, tmp = cache_root(cfg)
+    adapters, skipped = make_adapters(cfg, camera, cache)
     try:
-        check = _conversion_check(adapters, cfg, camera)
+        check = conversion_check(adapters, cfg, camera)
         conds = [CONDITIONS[c].resolved(cfg.sigma_px, cfg.mag_limit) for c in cfg.conditions]
         results = []
         bar = tqdm(total=cfg.frames * len(conds), file=sys.stderr, unit="frame",
                    disable=None if cfg.progress else True, desc="bench starid")
         for cond in conds:
             assert cond.mag_limit is not None
-            cat = _catalog(cond.mag_limit, cfg.epoch)
+            cat = load_catalog(cond.mag_limit, cfg.epoch)
             cam = camera_for(cond, cfg.width, cfg.height, cfg.fov_deg)
             for a in adapters:
                 a.setup(cond, cam)
             frames: list[Frame] = []
-            outcomes: dict[str, list[_Outcome]] = {a.name: [] for a in adapters}
+            outcomes: dict[str, list[Outcome]] = {a.name: [] for a in adapters}
             bar.set_postfix_str(cond.name)
             for i in range(cfg.frames):
                 f = make_frame(cat, cam, cond, cfg.seed, i, cfg.mag_noise)
@@ -1221,7 +1188,7 @@ def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
                 "centroids_per_frame_median": float(np.median([len(f.xy) for f in frames])),
                 "solver_params": {a.name: a.params() for a in adapters},
                 "results": per,
-                "time_ratio_ours_over_peer": _ratios(per),
+                "time_ratio_ours_over_peer": time_ratios(per),
             }  # fmt: skip
             results.append(entry)
         bar.close()
@@ -1234,8 +1201,8 @@ def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
     solvers.update(skipped)
     doc = {
         "schema": "adfusion.bench.starid/1",
-        "machine": _machine(),
-        "code": _code_version(),
+        "machine": machine_info(),
+        "code": code_version(),
         "config": asdict(cfg),
         "solvers": {name: solvers[name] for name in cfg.solvers if name in solvers},
         "conversion_check": check,
@@ -1245,7 +1212,7 @@ def run_benchmark(cfg: BenchConfig) -> dict[str, Any]:
     return doc
 
 
-def _ratios(per: dict[str, dict[str, Any]]) -> dict[str, float | None]:
+def time_ratios(per: dict[str, dict[str, Any]]) -> dict[str, float | None]:
     if "ours" not in per:
         return {}
     ours = per["ours"]["time_ms"]["median"]
@@ -1275,7 +1242,7 @@ def format_table(doc: dict[str, Any]) -> str:
         f"correct = frame shift < max({cfg['tol_px']:g} px, {cfg['tol_sigma']:g}σ)",
         f"machine: {m['cpu']} ({m['cores']} cores), Python {m['python']}; starid "
         f"{doc['code']['git_commit']}{' + local changes' if doc['code']['git_dirty'] else ''}"
-        f" (sources {doc['code']['starid_sources_sha256']})",
+        f" (sources {doc['code']['sources_sha256']})",
     ]
     for name, s in doc["solvers"].items():
         if s.get("status") != "ok":

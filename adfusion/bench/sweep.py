@@ -60,6 +60,7 @@ import numpy as np
 
 from adfusion.bench import campaign
 from adfusion.bench import starid as bs
+from adfusion.bench.machine import code_version, machine_info
 from adfusion.bench.starid import Condition
 
 __all__ = [
@@ -219,11 +220,11 @@ def _tolerance(job: Job | SweepConfig, cond: Condition) -> float:
 # --- the task (runs on the workers) -------------------------------------------------------
 
 
-def _adapters(job: Job) -> list[bs._Adapter]:
+def _adapters(job: Job) -> list[bs.Adapter]:
     from pathlib import Path as _Path
 
-    cache = _Path(job.cache_dir) if job.cache_dir else bs._cache_root(job)[0]
-    adapters, skipped = bs._make_adapters(job, None, cache)  # type: ignore[arg-type]
+    cache = _Path(job.cache_dir) if job.cache_dir else bs.cache_root(job)[0]
+    adapters, skipped = bs.make_adapters(job, None, cache)  # type: ignore[arg-type]
     if skipped:  # on a worker: the client checked these, so this is a broken worker
         raise RuntimeError(f"solvers unavailable on this worker: {skipped}")
     return adapters
@@ -242,7 +243,7 @@ def run_chunk(payload: tuple[Job, Condition, int, int]) -> dict[str, Any]:
     warm = campaign.worker_memo(("bench_sweep.warm", job), set)
     cam = bs.camera_for(cond, job.width, job.height, job.fov_deg)
     assert cond.mag_limit is not None
-    cat = bs._catalog(cond.mag_limit, job.epoch)
+    cat = bs.load_catalog(cond.mag_limit, job.epoch)
     tol = _tolerance(job, cond)
     for a in adapters:
         a.setup(cond, cam)
@@ -291,12 +292,12 @@ def _prepare(cfg: SweepConfig, pts: list[tuple[Sweep, float, Condition]], cache:
     """Client side, before the campaign: which solvers work, the conversion check, and
     every index and peer database built once (so workers only load them)."""
     probe = cfg.job(cfg.solvers, str(cache))
-    adapters, skipped = bs._make_adapters(probe, None, cache)  # type: ignore[arg-type]
+    adapters, skipped = bs.make_adapters(probe, None, cache)  # type: ignore[arg-type]
     names = [a.name for a in adapters]
     job = cfg.job(names, str(cache))
     try:
         camera = bs.camera_for(Condition("base"), cfg.width, cfg.height, cfg.fov_deg)
-        check = bs._conversion_check(adapters, job, camera)  # type: ignore[arg-type]
+        check = bs.conversion_check(adapters, job, camera)  # type: ignore[arg-type]
         for _, _, cond in pts:
             cam = bs.camera_for(cond, cfg.width, cfg.height, cfg.fov_deg)
             for a in adapters:
@@ -306,7 +307,7 @@ def _prepare(cfg: SweepConfig, pts: list[tuple[Sweep, float, Condition]], cache:
         for a in adapters:
             a.close()
     if not in_process:
-        bs._SOLVERS.clear()  # the workers load their own (from the cache just filled)
+        bs.SOLVERS.clear()  # the workers load their own (from the cache just filled)
     info.update(skipped)
     return job, info, check
 
@@ -320,7 +321,7 @@ def run_sweep(cfg: SweepConfig) -> dict[str, Any]:
     t_start = time.perf_counter()
     pts = points(cfg)
     in_process = cfg.scheduler is None and (cfg.workers == 0 or not campaign.dask_available())
-    cache, tmp = bs._cache_root(cfg)  # tmp: caching is off, a folder for this run only
+    cache, tmp = bs.cache_root(cfg)  # tmp: caching is off, a folder for this run only
     try:
         job, solver_info, check = _prepare(cfg, pts, cache, in_process)
         res = _campaign(cfg, pts, job)
@@ -363,8 +364,8 @@ def _document(cfg: SweepConfig, pts: list[tuple[Sweep, float, Condition]], job: 
         sweeps[-1]["points"].append(entry)
     doc = {
         "schema": "adfusion.bench.sweep/1",
-        "machine": bs._machine(),
-        "code": bs._code_version(),
+        "machine": machine_info(),
+        "code": code_version(),
         "config": {k: v for k, v in asdict(cfg).items()
                    if k not in ("workers", "scheduler", "progress", "partial", "cache_dir",
                                 "keep_partial")},
@@ -399,7 +400,7 @@ def _point(job: Job, sw: Sweep, value: float, cond: Condition,
             "ge4": int((n_true >= 4).sum())},
         "centroids_per_frame_median": float(np.median(frames[:, 1])),
         "results": results,
-        "time_ratio_ours_over_peer": bs._ratios(
+        "time_ratio_ours_over_peer": bs.time_ratios(
             {k: v for k, v in results.items() if k != "ours_tracking"}),
         "wall_s": round(sum(c["wall_s"] for c in chunks), 2),  # task time, all workers
     }  # fmt: skip

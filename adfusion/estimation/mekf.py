@@ -66,6 +66,13 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from adfusion.estimation.common import (
+    check_dt_omega,
+    phi_rows,
+    symmetrize,
+    tangent_basis,
+    tangent_residual,
+)
 from adfusion.starid import rotations as rot
 
 __all__ = [
@@ -124,45 +131,6 @@ def chi2_gate(probability: float, dof: int) -> float:
 # --- closed-form discrete model ---------------------------------------------------------
 
 
-def _series_coeffs(n: float) -> tuple[float, float, float]:
-    """sin(n)/n, (1 − cos n)/n², (n − sin n)/n³ — with Taylor branches near n = 0.
-
-    The closed forms lose all their digits to cancellation for small n (a gyro at 1 kHz
-    turns by microradians per step), so below 1e-3 rad the series is used (truncation
-    error ~n⁶, far below double precision there).
-    """
-    if n < 1e-3:
-        n2 = n * n
-        return (1.0 - n2 / 6.0 + n2 * n2 / 120.0,
-                0.5 - n2 / 24.0 + n2 * n2 / 720.0,
-                1.0 / 6.0 - n2 / 120.0 + n2 * n2 / 5040.0)  # fmt: skip
-    s, c = math.sin(n), math.cos(n)
-    return s / n, (1.0 - c) / (n * n), (n - s) / (n * n * n)
-
-
-def _phi_rows(tx: float, ty: float, tz: float, dt: float) -> list[list[float]]:
-    """Top three rows of Φ (the bottom three are ``[0 I]``) for a step θ = ω̂·dt.
-
-    Φ₁₁ = Exp(−θ) = I − a[θ]× + c[θ]×²,  Φ₁₂ = ∫₀^dt Exp(−ω̂ s) ds = dt (I − c[θ]× + d[θ]×²),
-    with [θ]×² = θθᵀ − |θ|² I; written out entry by entry because a 6×6 numpy assembly from
-    3×3 pieces costs more than the arithmetic.
-    """
-    n2 = tx * tx + ty * ty + tz * tz
-    a, c, d = _series_coeffs(math.sqrt(n2))
-    xx, yy, zz, xy, xz, yz = tx * tx, ty * ty, tz * tz, tx * ty, tx * tz, ty * tz
-    a_d = 1.0 - c * n2
-    b_d = dt * (1.0 - d * n2)
-    cd, dd = c * dt, d * dt
-    return [
-        [a_d + c * xx, a * tz + c * xy, -a * ty + c * xz,
-         b_d + dd * xx, cd * tz + dd * xy, -cd * ty + dd * xz],
-        [-a * tz + c * xy, a_d + c * yy, a * tx + c * yz,
-         -cd * tz + dd * xy, b_d + dd * yy, cd * tx + dd * yz],
-        [a * ty + c * xz, -a * tx + c * yz, a_d + c * zz,
-         cd * ty + dd * xz, -cd * tx + dd * yz, b_d + dd * zz],
-    ]  # fmt: skip
-
-
 def left_jacobian(phi: ArrayLike) -> Array:
     """Left Jacobian of SO(3): ``Log(Exp(φ + ε) Exp(−φ)) ≈ J_l(φ) ε``.
 
@@ -173,8 +141,8 @@ def left_jacobian(phi: ArrayLike) -> Array:
     True
     """
     px, py, pz = (float(v) for v in np.asarray(phi, dtype=np.float64))
-    # _phi_rows(−φ, dt=1)[:, 3:] is ∫₀¹ Exp(φ s) ds = J_l(φ)
-    return np.array([row[3:] for row in _phi_rows(-px, -py, -pz, 1.0)])
+    # phi_rows(−φ, dt=1)[:, 3:] is ∫₀¹ Exp(φ s) ds = J_l(φ)
+    return np.array([row[3:] for row in phi_rows(-px, -py, -pz, 1.0)])
 
 
 def transition_matrix(omega_hat_rad_s: ArrayLike, dt: float) -> Array:
@@ -189,7 +157,7 @@ def transition_matrix(omega_hat_rad_s: ArrayLike, dt: float) -> Array:
     """
     tx, ty, tz = (float(v) * dt for v in np.asarray(omega_hat_rad_s, dtype=np.float64))
     phi = np.eye(6)
-    phi[:3] = _phi_rows(tx, ty, tz, dt)
+    phi[:3] = phi_rows(tx, ty, tz, dt)
     return phi
 
 
@@ -213,53 +181,8 @@ def process_noise(dt: float, arw_rad_sqrt_s: float, rrw_rad_s_sqrt_s: float) -> 
     return q
 
 
-# --- float quaternion helpers (hot path; numpy costs ~1 µs per call on 4-vectors) --------
 
 
-_qmul = rot.hamilton  # p ⊗ q on float tuples
-
-
-def _qexp(tx: float, ty: float, tz: float) -> tuple[float, float, float, float]:
-    """Quaternion of the rotation vector (tx, ty, tz); exact, Taylor branch near zero."""
-    n = math.sqrt(tx * tx + ty * ty + tz * tz)
-    if n < 1e-6:
-        k = 0.5 - n * n / 48.0
-        return (1.0 - n * n / 8.0, k * tx, k * ty, k * tz)
-    k = math.sin(0.5 * n) / n
-    return (math.cos(0.5 * n), k * tx, k * ty, k * tz)
-
-
-def _qnormalize(q: tuple[float, ...]) -> tuple[float, float, float, float]:
-    w, x, y, z = q
-    s = 1.0 / math.sqrt(w * w + x * x + y * y + z * z)
-    if w < 0.0:  # keep the stored sign convention (w ≥ 0) so the state never flips
-        s = -s
-    return (w * s, x * s, y * s, z * s)
-
-
-def _qlog(q: tuple[float, ...]) -> tuple[float, float, float]:
-    """Rotation vector (angle ≤ π) of a unit quaternion."""
-    w, x, y, z = q
-    if w < 0.0:
-        w, x, y, z = -w, -x, -y, -z
-    s = math.sqrt(x * x + y * y + z * z)
-    if s < 1e-9:
-        k = 2.0 / w * (1.0 + s * s / (6.0 * w * w))
-    else:
-        k = 2.0 * math.atan2(s, w) / s
-    return (k * x, k * y, k * z)
-
-
-def _qrotate(q: tuple[float, ...], v: tuple[float, float, float]) -> tuple[float, float, float]:
-    """R(q) v for a unit quaternion: v + 2w (u × v) + 2 u × (u × v)."""
-    w, x, y, z = q
-    vx, vy, vz = v
-    tx = 2.0 * (y * vz - z * vy)
-    ty = 2.0 * (z * vx - x * vz)
-    tz = 2.0 * (x * vy - y * vx)
-    return (vx + w * tx + y * tz - z * ty,
-            vy + w * ty + z * tx - x * tz,
-            vz + w * tz + x * ty - y * tx)  # fmt: skip
 
 
 def _unit3(v: ArrayLike, what: str) -> tuple[float, float, float] | str:
@@ -290,7 +213,7 @@ def _unit_quat(q: ArrayLike, what: str) -> tuple[float, float, float, float] | s
     n2 = w * w + x * x + y * y + z * z
     if not n2 > 1e-300 or not math.isfinite(n2):
         return f"{what} has zero (or non-finite) norm"
-    return _qnormalize((w, x, y, z))
+    return rot.normalize_floats((w, x, y, z))
 
 
 def _sym_pd_3x3(cov: ArrayLike, what: str) -> Array | str:
@@ -308,27 +231,6 @@ def _sym_pd_3x3(cov: ArrayLike, what: str) -> Array | str:
     except np.linalg.LinAlgError:
         return f"{what} is not positive definite"
     return 0.5 * (c + c.T)
-
-
-def _check_dt_omega(dt: float, omega_meas_rad_s: ArrayLike) -> tuple[float, float, float, float]:
-    """Validated (dt, ωx, ωy, ωz) for a propagation step; raises ValueError on bad input.
-
-    Propagation cannot "reject" a sample the way an update can: time has to advance, and
-    only the caller knows whether to bridge a gap with the previous rate or to stop. So a
-    bad gyro sample or step is an exception and the state is left as it was.
-    """
-    dt = float(dt)
-    if not 0.0 < dt < math.inf:
-        raise ValueError(f"dt must be a finite positive number of seconds, got {dt}")
-    w = np.asarray(omega_meas_rad_s, dtype=np.float64)
-    if w.shape != (3,):
-        raise ValueError(f"omega_meas_rad_s must have shape (3,), got {w.shape}")
-    wx, wy, wz = w.tolist()
-    if not math.isfinite(wx + wy + wz):
-        raise ValueError(f"gyro sample is not finite: {[wx, wy, wz]}")
-    if not math.isfinite((wx * wx + wy * wy + wz * wz) * dt * dt):
-        raise ValueError(f"gyro sample × dt overflows: {[wx, wy, wz]} × {dt}")
-    return dt, wx, wy, wz
 
 
 def _sigma3(value: ArrayLike, what: str) -> Array:
@@ -413,7 +315,7 @@ class AttitudeFilter:
         """Camera attitude implied by the mounting: ``q_cam_icrs = q_body_cam⁻¹ ⊗ q_body_icrs``
         (the prior a tracking star solver wants)."""
         w, x, y, z = self._q_bc
-        return np.array(_qnormalize(_qmul((w, -x, -y, -z), self._q)))
+        return np.array(rot.normalize_floats(rot.hamilton((w, -x, -y, -z), self._q)))
 
     @property
     def q_body_cam(self) -> Array:
@@ -518,7 +420,7 @@ class AttitudeFilter:
         cov = _sym_pd_3x3(cov_cam_rad2, "cov_cam_rad2")
         if isinstance(cov, str):
             return UpdateResult(False, math.nan, 3, cov)
-        qb = _qnormalize(_qmul(self._q_bc, qc))
+        qb = rot.normalize_floats(rot.hamilton(self._q_bc, qc))
         return self._attitude_update(qb, self._r_bc @ cov @ self._r_bc.T)
 
     def update_camera_vector(
@@ -528,7 +430,7 @@ class AttitudeFilter:
         bm = _unit3(b_meas_cam, "b_meas_cam")
         if isinstance(bm, str):
             return UpdateResult(False, math.nan, 2, bm)
-        return self.update_vector(_qrotate(self._q_bc, bm), r_ref_icrs, sigma_rad)
+        return self.update_vector(rot.rotate_floats(self._q_bc, bm), r_ref_icrs, sigma_rad)
 
     def _gate(self, nis: float, dof: int) -> UpdateResult | None:
         """None when the innovation passes; otherwise the rejected result."""
@@ -544,46 +446,6 @@ class AttitudeFilter:
                 False, nis, dof, f"NIS {nis:.4g} > gate {g:.4g} ({dof} dof, p={self._gate_p})"
             )
         return None
-
-
-def _tangent_basis(
-    px: float, py: float, pz: float
-) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
-    """Orthonormal e1, e2 ⟂ the unit vector p, with e2 = p × e1.
-
-    e1 is p crossed with the coordinate axis p is least aligned with, so it never degenerates.
-    """
-    ax, ay, az = abs(px), abs(py), abs(pz)
-    if ax <= ay and ax <= az:
-        e1 = (0.0, pz, -py)  # p × x̂
-    elif ay <= az:
-        e1 = (-pz, 0.0, px)  # p × ŷ
-    else:
-        e1 = (py, -px, 0.0)  # p × ẑ
-    s = 1.0 / math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
-    e1x, e1y, e1z = e1[0] * s, e1[1] * s, e1[2] * s
-    return (e1x, e1y, e1z), (py * e1z - pz * e1y, pz * e1x - px * e1z, px * e1y - py * e1x)
-
-
-def _tangent_residual(
-    e1: tuple[float, float, float], e2: tuple[float, float, float],
-    p: tuple[float, float, float], b: tuple[float, float, float],
-) -> tuple[float, float]:  # fmt: skip
-    """Residual of the unit direction ``b`` against the prediction ``p`` in the tangent basis
-    (e1, e2) of ``p``: the log map, so its length is the angle between them.
-
-    Why not the plain projections (e1·b, e2·b): they are sin θ long, which is 0 again at
-    180° — an exactly reversed vector (a magnetometer of flipped polarity) would pass with
-    NIS 0. At θ = π the direction is undefined; any one of length π says "180° off".
-    """
-    y0 = e1[0] * b[0] + e1[1] * b[1] + e1[2] * b[2]
-    y1 = e2[0] * b[0] + e2[1] * b[1] + e2[2] * b[2]
-    sin_t = math.hypot(y0, y1)
-    cos_t = p[0] * b[0] + p[1] * b[1] + p[2] * b[2]
-    if sin_t < 1e-12:
-        return (y0, y1) if cos_t > 0.0 else (math.pi, 0.0)
-    scale = math.atan2(sin_t, cos_t) / sin_t
-    return y0 * scale, y1 * scale
 
 
 class MEKF(AttitudeFilter):
@@ -655,28 +517,28 @@ class MEKF(AttitudeFilter):
         (:func:`process_noise`). Raises ValueError (state unchanged) on a non-finite sample
         or a step that is not a finite positive number.
         """
-        dt, wx, wy, wz = _check_dt_omega(dt, omega_meas_rad_s)
+        dt, wx, wy, wz = check_dt_omega(dt, omega_meas_rad_s)
         b = self._b
         tx, ty, tz = (wx - b[0]) * dt, (wy - b[1]) * dt, (wz - b[2]) * dt
         # body rates turn R_body_icrs by −θ on the left (Ṙ_body_icrs = −[ω]× R_body_icrs)
-        self._q = _qnormalize(_qmul(_qexp(-tx, -ty, -tz), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(-tx, -ty, -tz), self._q))
         phi = self._phi
-        phi[:3] = _phi_rows(tx, ty, tz, dt)
+        phi[:3] = phi_rows(tx, ty, tz, dt)
         if dt != self._q_dt:
             self._Q = process_noise(dt, self._sv, self._su)
             self._q_dt = dt
         p = phi.dot(self._P).dot(phi.T)  # .dot: a third of the call overhead of @ here
         p += self._Q
-        self._P = _symmetrize(p)
+        self._P = symmetrize(p)
 
     def _vector_update(
         self, bm: tuple[float, float, float], rr: tuple[float, float, float], sigma: float
     ) -> UpdateResult:
-        px, py, pz = _qrotate(self._q, rr)  # predicted direction b̂ = R(q̂) r
-        (e1x, e1y, e1z), (e2x, e2y, e2z) = _tangent_basis(px, py, pz)
+        px, py, pz = rot.rotate_floats(self._q, rr)  # predicted direction b̂ = R(q̂) r
+        (e1x, e1y, e1z), (e2x, e2y, e2z) = tangent_basis(px, py, pz)
         # b = Exp(δθ) b̂ ≈ b̂ + δθ × b̂, so e1·b = δθ·e2 and e2·b = −δθ·e1 (b̂ × e2 = −e1);
         # taken through the log map, so that the residual's length is the angle (to 180°)
-        y0, y1 = _tangent_residual((e1x, e1y, e1z), (e2x, e2y, e2z), (px, py, pz), bm)
+        y0, y1 = tangent_residual((e1x, e1y, e1z), (e2x, e2y, e2z), (px, py, pz), bm)
         h = self._h  # H (2×6); the bias columns stay zero
         h[0, 0], h[0, 1], h[0, 2], h[1, 0], h[1, 1], h[1, 2] = e2x, e2y, e2z, -e1x, -e1y, -e1z
         p = self._P
@@ -723,10 +585,10 @@ class MEKF(AttitudeFilter):
         q_bar = self._q
         for _ in range(max_iter):
             jl = left_jacobian(dx[:3])
-            q_i = _qnormalize(_qmul(_qexp(*dx[:3].tolist()), q_bar))
-            px, py, pz = _qrotate(q_i, rr)
-            e1, e2 = _tangent_basis(px, py, pz)
-            y = np.array(_tangent_residual(e1, e2, (px, py, pz), bm))
+            q_i = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(*dx[:3].tolist()), q_bar))
+            px, py, pz = rot.rotate_floats(q_i, rr)
+            e1, e2 = tangent_basis(px, py, pz)
+            y = np.array(tangent_residual(e1, e2, (px, py, pz), bm))
             h = np.zeros((2, 6))
             h[:, :3] = np.array([e2, [-e1[0], -e1[1], -e1[2]]]) @ jl
             k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r * np.eye(2))
@@ -744,7 +606,7 @@ class MEKF(AttitudeFilter):
     def _attitude_update(self, qm: tuple[float, ...], cov: Array) -> UpdateResult:
         w, x, y, z = self._q
         # residual δz = Log(q_meas ⊗ q̂⁻¹): the fix's error rotation in the body frame, H = [I 0]
-        y_vec = np.array(_qlog(_qmul(qm, (w, -x, -y, -z))))
+        y_vec = np.array(rot.log_map_floats(rot.hamilton(qm, (w, -x, -y, -z))))
         p = self._P
         s = p[:3, :3] + cov
         try:
@@ -782,24 +644,10 @@ class MEKF(AttitudeFilter):
         """
         d = dx.tolist()
         b = self._b
-        self._q = _qnormalize(_qmul(_qexp(d[0], d[1], d[2]), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(d[0], d[1], d[2]), self._q))
         self._b = [b[0] + d[3], b[1] + d[4], b[2] + d[5]]
-        self._P = _symmetrize(new_p)
+        self._P = symmetrize(new_p)
 
 
-_HALF6 = np.full((6, 6), 0.5)
-_HALF6.setflags(write=False)
 
 
-def _symmetrize(p: Array) -> Array:
-    """(p + pᵀ)/2 as a new array.
-
-    Written for speed on a 6×6, where call overhead is everything: an in-place ``p += p.T``
-    (exact: numpy buffers the overlapping operand) and ``p + p.T`` take the slow strided
-    path, and multiplying by a scalar converts it first; copying the transpose and scaling by
-    a constant array is about twice as fast.
-    """
-    s = p.T.copy()
-    s += p
-    s *= _HALF6
-    return s

@@ -67,15 +67,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.estimation.mekf import (
-    MEKF,
-    _phi_rows,
-    _qexp,
-    _qmul,
-    _qnormalize,
-    _series_coeffs,
-    _symmetrize,
-)
+from adfusion.estimation.common import phi_rows, series_coeffs, symmetrize
+from adfusion.estimation.mekf import MEKF
+from adfusion.starid import rotations as rot
 
 __all__ = ["RateMEKF", "rate_process_noise", "rate_transition_matrix"]
 
@@ -118,7 +112,7 @@ def rate_transition_matrix(omega_rad_s: ArrayLike, dt: float) -> Array:
     dt = float(dt)
     tx, ty, tz = (float(v) * dt for v in w)
     phi = np.eye(6)
-    phi[:3] = _phi_rows(tx, ty, tz, dt)
+    phi[:3] = phi_rows(tx, ty, tz, dt)
     phi[:3, 3:] *= -1.0
     return phi
 
@@ -140,7 +134,7 @@ def rate_process_noise(omega_rad_s: ArrayLike, dt: float, sigma_rate_walk: float
     qc = float(sigma_rate_walk) ** 2
     tx, ty, tz = (float(v) * dt for v in w)
     n = math.sqrt(tx * tx + ty * ty + tz * tz)
-    _, _, d = _series_coeffs(n)
+    _, _, d = series_coeffs(n)
     e, f = _rate_coeffs(n)
     k = _skew(tx, ty, tz)
     k2 = k @ k
@@ -247,18 +241,18 @@ class RateMEKF(MEKF):
         if not math.isfinite(tx * tx + ty * ty + tz * tz):
             raise ValueError(f"rate estimate × dt overflows: {self._w} × {dt}")
         phi = self._phi
-        phi[:3] = _phi_rows(tx, ty, tz, dt)
+        phi[:3] = phi_rows(tx, ty, tz, dt)
         phi[:3, 3:] *= -1.0  # δθ' = −[ω̂]× δθ − δω
         q_noise = rate_process_noise(self._w, dt, self._su)
-        self._q = _qnormalize(_qmul(_qexp(-tx, -ty, -tz), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(-tx, -ty, -tz), self._q))
         p = phi.dot(self._P).dot(phi.T)
         p += q_noise
-        self._P = _symmetrize(p)
+        self._P = symmetrize(p)
 
     def _apply(self, dx: Array, new_p: Array) -> None:
         """Reset: ``q ← Exp(δθ) ⊗ q``, ``ω̂ ← ω̂ + δω``, error state zeroed."""
         d = dx.tolist()
         w = self._w
-        self._q = _qnormalize(_qmul(_qexp(d[0], d[1], d[2]), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(d[0], d[1], d[2]), self._q))
         self._w = [w[0] + d[3], w[1] + d[4], w[2] + d[5]]
-        self._P = _symmetrize(new_p)
+        self._P = symmetrize(new_p)

@@ -44,20 +44,13 @@ import numpy as np
 from filterpy.kalman import JulierSigmaPoints, UnscentedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.estimation.mekf import (
-    AttitudeFilter,
-    UpdateResult,
-    _check_dt_omega,
-    _qexp,
-    _qlog,
-    _qmul,
-    _qnormalize,
-    _qrotate,
-    _symmetrize,
-    _tangent_basis,
-    _tangent_residual,
-    process_noise,
+from adfusion.estimation.common import (
+    check_dt_omega,
+    symmetrize,
+    tangent_basis,
+    tangent_residual,
 )
+from adfusion.estimation.mekf import AttitudeFilter, UpdateResult, process_noise
 from adfusion.starid import rotations as rot
 
 __all__ = ["UKF", "grp_from_quaternion", "quaternion_from_grp"]
@@ -101,12 +94,6 @@ def _grp_to_quat_f(px: float, py: float, pz: float) -> tuple[float, float, float
     return (w, k * px, k * py, k * pz)
 
 
-def _right_matrix(q: tuple[float, ...]) -> Array:
-    """4×4 M with ``p ⊗ q = M @ p`` (right multiplication by a fixed quaternion)."""
-    w, x, y, z = q
-    return np.array([[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]])
-
-
 class _USQUE(UnscentedKalmanFilter):  # type: ignore[misc]
     """filterpy's UKF with the process model applied to all sigma points at once.
 
@@ -129,7 +116,7 @@ def _fx(
     q_i = δq(δp_i) ⊗ q̂, q_i⁺ = Exp(−(ω − β_i) dt) ⊗ q_i, δp_i⁺ = GRP(q_i⁺ ⊗ q̂⁺⁻¹) where q̂⁺ is
     the propagated central sigma point; the bias is a random walk (mean unchanged). The two
     products with a fixed quaternion are matrix products (``right_*`` from
-    :func:`_right_matrix`), rows at a time.
+    :func:`rot.right_matrix`), rows at a time.
     """
     q_i = quaternion_from_grp(sigmas[:, :3]) @ right_ref.T
     q_i = rot.multiply(rot.exp_map(-(omega - sigmas[:, 3:]) * dt), q_i)
@@ -146,14 +133,14 @@ def _hx_vector(
     """Predicted direction of one sigma point, in the tangent basis (e1, e2) of the mean's
     prediction ``p`` (through the log map, as the measurement)."""
     px, py, pz = s[:3].tolist()
-    b = _qrotate(_qmul(_grp_to_quat_f(px, py, pz), q_ref), r)
-    return np.array(_tangent_residual(e1, e2, p, b))
+    b = rot.rotate_floats(rot.hamilton(_grp_to_quat_f(px, py, pz), q_ref), r)
+    return np.array(tangent_residual(e1, e2, p, b))
 
 
 def _hx_attitude(s: Array) -> Array:
     """Predicted attitude-fix residual of one sigma point: the rotation vector of δq(δp)."""
     px, py, pz = s[:3].tolist()
-    return np.array(_qlog(_grp_to_quat_f(px, py, pz)))
+    return np.array(rot.log_map_floats(_grp_to_quat_f(px, py, pz)))
 
 
 class UKF(AttitudeFilter):
@@ -213,34 +200,34 @@ class UKF(AttitudeFilter):
         constant rate over the step). Raises ValueError (state unchanged) on a non-finite
         sample or a step that is not a finite positive number.
         """
-        dt, wx, wy, wz = _check_dt_omega(dt, omega_meas_rad_s)
+        dt, wx, wy, wz = check_dt_omega(dt, omega_meas_rad_s)
         u = self.filterpy
         b = u.x[3:].tolist()
         q_ref = self._q
-        q_next = _qnormalize(_qmul(_qexp(-(wx - b[0]) * dt, -(wy - b[1]) * dt,
-                                         -(wz - b[2]) * dt), q_ref))  # fmt: skip
+        step = rot.exp_map_floats(-(wx - b[0]) * dt, -(wy - b[1]) * dt, -(wz - b[2]) * dt)
+        q_next = rot.normalize_floats(rot.hamilton(step, q_ref))
         if dt != self._q_dt:
             u.Q = process_noise(dt, self._sv, self._su)
             self._q_dt = dt
         w, x, y, z = q_next
-        u.predict(dt=dt, omega=np.array([wx, wy, wz]), right_ref=_right_matrix(q_ref),
-                  right_next_inv=_right_matrix((w, -x, -y, -z)))  # fmt: skip
-        u.P = _symmetrize(u.P)
+        u.predict(dt=dt, omega=np.array([wx, wy, wz]), right_ref=rot.right_matrix(q_ref),
+                  right_next_inv=rot.right_matrix((w, -x, -y, -z)))  # fmt: skip
+        u.P = symmetrize(u.P)
         self._q = q_next
         self._fold()
 
     def _vector_update(
         self, bm: tuple[float, float, float], rr: tuple[float, float, float], sigma: float
     ) -> UpdateResult:
-        p = _qrotate(self._q, rr)
-        e1, e2 = _tangent_basis(*p)
-        z = np.array(_tangent_residual(e1, e2, p, bm))  # its length is the angle, to 180°
+        p = rot.rotate_floats(self._q, rr)
+        e1, e2 = tangent_basis(*p)
+        z = np.array(tangent_residual(e1, e2, p, bm))  # its length is the angle, to 180°
         return self._ut_update(z, (sigma * sigma) * self._R2, 2, _hx_vector,
                                {"q_ref": self._q, "r": rr, "e1": e1, "e2": e2, "p": p})
 
     def _attitude_update(self, qm: tuple[float, ...], cov: Array) -> UpdateResult:
         w, x, y, z = self._q
-        z_res = np.array(_qlog(_qmul(qm, (w, -x, -y, -z))))
+        z_res = np.array(rot.log_map_floats(rot.hamilton(qm, (w, -x, -y, -z))))
         return self._ut_update(z_res, cov, 3, _hx_attitude, {})
 
     def _ut_update(
@@ -265,7 +252,7 @@ class UKF(AttitudeFilter):
         if gated is not None:  # rejected: the state is exactly what it was before
             u.x, u.P = x0, p0
             return gated
-        u.P = _symmetrize(u.P)
+        u.P = symmetrize(u.P)
         self._fold()
         return UpdateResult(True, nis, dof)
 
@@ -274,5 +261,5 @@ class UKF(AttitudeFilter):
         (``q̂ ← δq(δp̂) ⊗ q̂``); the bias is a state of its own and stays as estimated."""
         u = self.filterpy
         px, py, pz = u.x[:3].tolist()
-        self._q = _qnormalize(_qmul(_grp_to_quat_f(px, py, pz), self._q))
+        self._q = rot.normalize_floats(rot.hamilton(_grp_to_quat_f(px, py, pz), self._q))
         u.x[:3] = 0.0

@@ -1,0 +1,39 @@
+"""The log's topic names, one constant each: writers, replay and report use these, never
+string literals.
+
+Example:
+    >>> from adfusion.logs import topics
+    >>> topics.ESTIMATE_STATE, topics.CAMERA_IMAGE
+    ('/estimate/state', '/camera/image')
+"""
+
+from __future__ import annotations
+
+CAMERA_IMAGE = "/camera/image"
+"""Camera frames (``foxglove.RawImage`` or ``foxglove.CompressedImage``)."""
+CAMERA_CENTROIDS = "/camera/centroids"
+"""Star centroids in place of an image (centroid-only simulations), pixels."""
+CAMERA_ANNOTATIONS = "/camera/annotations"
+"""Detections, identified and predicted stars drawn on the frame."""
+CAMERA_CALIBRATION = "/camera/calibration"
+"""The camera model (``foxglove.CameraCalibration``)."""
+GYRO = "/imu/gyro"
+"""Gyro samples, rad/s, body frame."""
+MAG = "/mag"
+"""Magnetometer samples, nT, body frame (with the ICRS reference field when known)."""
+STARID_SOLUTION = "/starid/solution"
+"""One star-identification result per frame."""
+ESTIMATE_STATE = "/estimate/state"
+"""The filter's state after each frame."""
+ESTIMATE_POSE = "/estimate/pose"
+"""The filter's attitude as a ``foxglove.PoseInFrame`` in ``icrs``."""
+SMOOTHED_STATE = "/smoothed/state"
+"""The smoother's state per frame (``replay --smooth``)."""
+SMOOTHED_POSE = "/smoothed/pose"
+"""The smoother's attitude as a pose in ``icrs``."""
+TRUTH_STATE = "/truth/state"
+"""Simulation truth: attitude, rate, gyro bias."""
+TRUTH_POSE = "/truth/pose"
+"""Simulation truth attitude per frame as a pose in ``icrs``."""
+TF = "/tf"
+"""Frame transforms (icrs → body → camera)."""
