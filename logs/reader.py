@@ -25,6 +25,7 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
 import heapq
 import io
 import json
@@ -207,7 +208,10 @@ class McapLogReader:
         self._walked_index: list[ChunkIndex] = []
         self._walked_count: int | None = None
         self._reported: set[tuple[int, str]] = set()
+        self._raw_metadata: dict[str, tuple[int, dict[str, str]]] = {}
+        self._attachment_at: dict[str, int] = {}
         self._scan()
+        self._check_digests()
 
     @property
     def problem(self) -> ReadProblem | None:
@@ -508,6 +512,7 @@ class McapLogReader:
             self._take(Channel.read(stream))
         elif opcode == Opcode.METADATA:
             meta = Metadata.read(stream)
+            self._raw_metadata[meta.name] = (offset, dict(meta.metadata))
             self.metadata[meta.name] = decode_metadata(meta.metadata)
         elif opcode == Opcode.ATTACHMENT:
             att = Attachment.read(stream)
@@ -517,6 +522,7 @@ class McapLogReader:
                              stacklevel=5)
             else:
                 self.attachments[att.name] = (att.media_type, att.data)
+                self._attachment_at[att.name] = offset
         elif opcode == Opcode.CHUNK_INDEX and not self._lazy:
             self._walked_index.append(ChunkIndex.read(stream))
         elif opcode == Opcode.STATISTICS and not self._lazy:
@@ -524,6 +530,31 @@ class McapLogReader:
         elif opcode == Opcode.FOOTER:
             return True
         return False
+
+    def _check_digests(self) -> None:
+        """Metadata and attachments against the ``digests`` record the writer left (when it
+        closed): one that was changed since is reported and dropped, never used."""
+        from adfusion.logs.writer import DIGESTS, digest_metadata
+
+        entry = self._raw_metadata.get(DIGESTS)
+        if entry is None:
+            return
+        digests = entry[1]
+        for name, (offset, raw) in self._raw_metadata.items():
+            want = digests.get(f"metadata:{name}")
+            if name == DIGESTS or want is None:
+                continue
+            if digest_metadata(raw) != want:
+                self.metadata.pop(name, None)
+                self._report(offset, f"metadata {name!r} does not match its recorded digest "
+                             "(changed after recording): not used")
+        for name, (_, data) in list(self.attachments.items()):
+            want = digests.get(f"attachment:{name}")
+            if want is not None and hashlib.sha256(data).hexdigest() != want:
+                self.attachments.pop(name)
+                self._report(self._attachment_at.get(name, 0), f"attachment {name!r} does not "
+                             "match its recorded digest (changed after recording): not used")
+        self.metadata.pop(DIGESTS, None)
 
     # ------------------------------------------------------------------ decoding
     def _output_topic(self, channel: ChannelInfo) -> str | None:

@@ -140,8 +140,21 @@ class PatternIndex:
         object.__setattr__(self, "_neg_pair_cos", -self.pair_cos)  # ascending search key
 
 
+#: Star pairs an index may hold (~100 bytes each while it is built): 10× what a 25° field
+#: at V 6.5 needs. Beyond it the pair search runs out of memory after tens of seconds
+#: (``std::bad_alloc``), so the estimate below refuses it at once.
+MAX_PAIRS = 50_000_000
+
+
 def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:
     chord = 2.0 * np.sin(0.5 * max_sep_rad)
+    # pairs of N stars spread over the sphere that lie within max_sep of each other
+    expected = 0.5 * len(v) * (len(v) - 1) * 0.5 * (1.0 - np.cos(max_sep_rad))
+    if expected > MAX_PAIRS:
+        raise ValueError(
+            f"{len(v)} catalogue stars within {np.degrees(max_sep_rad):.1f}° of each other "
+            f"make ~{expected:.2g} pairs (at most {MAX_PAIRS:.0e} fit in memory): use a lower "
+            "magnitude limit or a narrower field")
     tree = cKDTree(v)
     pairs = tree.query_pairs(chord, output_type="ndarray").astype(np.int64)
     if len(pairs) == 0:

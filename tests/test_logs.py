@@ -482,9 +482,19 @@ def test_independent_typescript_reader(tmp_path: Path) -> None:
     assert report["counts"] == ours == want
     assert report["statisticsMessageCount"] == len(written)
     assert report["ordered"]
-    assert report["metadata"] == [{"name": "config", "metadata": {
+    config, digests = report["metadata"]
+    assert config == {"name": "config", "metadata": {
         "scenario": "oedipus", "seed": "7", "duration_s": "2.5", "note": '"42"',
-        "noise": "[1,2.5]"}}]
+        "noise": "[1,2.5]"}}
+    # the digests record (written at close): SHA-256 of the config's sorted string map,
+    # recomputed here from what the independent reader returned
+    import hashlib
+
+    config_sha = hashlib.sha256(json.dumps(config["metadata"], sort_keys=True,
+                                           separators=(",", ":")).encode()).hexdigest()
+    assert digests["name"] == "digests"
+    assert digests["metadata"]["metadata:config"] == config_sha
+    assert set(digests["metadata"]) == {"metadata:config", "attachment:camera.json"}
     assert report["attachments"] == [{"name": "camera.json", "mediaType": "application/json",
                                       "size": len(json.dumps(CAMERA, separators=(",", ":")))}]
 

@@ -12,10 +12,127 @@ Example:
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import math
+import os
 import sys
 import time
 from collections.abc import Sequence
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".pgm", ".ppm")
+
+
+class UsageError(ValueError):
+    """A command-line argument is wrong: exit code 2, like argparse's own usage errors."""
+
+
+def _number(text: str, what: str = "a number") -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    return _number(text)
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number ≥ 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be ≥ 0")
+    return value
+
+
+def magnitude_limit(text: str) -> float:
+    """argparse type: a catalogue limit inside Hipparcos' range (V −1.5 … 12.5)."""
+    value = _number(text)
+    if not -1.5 <= value <= 12.5:
+        raise argparse.ArgumentTypeError(
+            f"{value:g} is outside the Hipparcos catalogue's V −1.5 … 12.5 (typical 5–7)")
+    return value
+
+
+def image_path(text: str) -> str:
+    """argparse type: an output image name OpenCV can write (by its suffix)."""
+    if not text.lower().endswith(IMAGE_SUFFIXES):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give an image file name ending in one of {', '.join(IMAGE_SUFFIXES)}")
+    return text
+
+
+def _output_file(path: str, flag: str = "-o") -> None:
+    """A file the command will write: not a folder, in a folder that exists."""
+    if os.path.isdir(path):
+        raise UsageError(f"{flag} {path} is a folder; give a file name")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UsageError(f"{flag} {path}: the folder {parent} does not exist")
+
+
+def _output_folder(path: str, flag: str = "-o") -> None:
+    """A folder the command will write into (created if missing): not an existing file."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"{flag} {path} exists and is not a folder; give a folder name")
+
+
+def _input_file(path: str, what: str = "input") -> None:
+    if os.path.isdir(path):
+        raise ValueError(f"{path}: is a folder, not an {what} file")
+    if not os.path.exists(path):
+        raise ValueError(f"{path}: no such file")
+
+
+def describe_error(exc: BaseException) -> str:
+    """One line saying what went wrong, for any exception a command can meet.
+
+    >>> describe_error(IsADirectoryError(21, "Is a directory", "out"))
+    'out: is a folder, not a file'
+    >>> describe_error(MemoryError())
+    'out of memory: the request is too large (a shorter --duration, a lower --mag-limit)'
+    """
+    if isinstance(exc, MemoryError):
+        return "out of memory: the request is too large (a shorter --duration, a lower " \
+               "--mag-limit)"
+    if isinstance(exc, OSError) and not isinstance(exc, ValueError):
+        name = exc.filename if exc.filename is not None else "output"
+        if exc.errno == errno.ENOSPC:
+            return f"{name}: no space left on the device"
+        if isinstance(exc, IsADirectoryError):
+            return f"{name}: is a folder, not a file"
+        if isinstance(exc, NotADirectoryError):
+            return f"{name}: part of this path is not a folder"
+        if isinstance(exc, FileExistsError):
+            return f"{name}: exists already"
+        if isinstance(exc, FileNotFoundError):
+            return f"{name}: no such file or folder"
+        if isinstance(exc, PermissionError):
+            return f"{name}: permission denied"
+        return f"{name}: {exc.strerror or exc}"
+    if type(exc).__module__.startswith("cv2"):
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        return "OpenCV: " + (lines[-1] if lines else type(exc).__name__)
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, ValueError | KeyError | TypeError | ArithmeticError | LookupError):
+        if isinstance(exc, ValueError):
+            return text
+        return f"{type(exc).__name__}: {text}"
+    return (f"internal error: {type(exc).__name__}: {text} (set ADFUSION_DEBUG=1 for the "
+            "traceback)")
 
 
 def build_parser(bench: bool = True) -> argparse.ArgumentParser:
@@ -31,7 +148,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     d.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
     d.add_argument("--example", action="store_true",
                    help="render and use the built-in synthetic example frame")
-    d.add_argument("--sigma", type=float, default=5.0, help="threshold in noise sigmas")
+    d.add_argument("--sigma", type=positive_float, default=5.0,
+                   help="threshold in noise sigmas")
     d.add_argument("--max", type=int, default=20, help="rows to print (default 20)")
     d.add_argument("--json", action="store_true", help="print JSON instead of a table")
     d.set_defaults(func=cmd_detect)
@@ -40,23 +158,27 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     s.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
     s.add_argument("--example", action="store_true",
                    help="render and solve the built-in synthetic example frame")
-    s.add_argument("--fov", type=float, help="horizontal field of view estimate, degrees")
-    s.add_argument("--fov-error", type=float, default=0.0,
+    s.add_argument("--fov", type=positive_float,
+                   help="horizontal field of view estimate, degrees")
+    s.add_argument("--fov-error", type=non_negative_float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
-    s.add_argument("--mag-limit", type=float, default=6.5,
+    s.add_argument("--mag-limit", type=magnitude_limit, default=6.5,
                    help="catalogue limit, estimated Johnson V (default 6.5)")
-    s.add_argument("--epoch", type=float, default=None,
+    s.add_argument("--epoch", type=finite_float, default=None,
                    help="observation epoch, Julian year (default: now)")
     s.add_argument("--method", choices=["nstar", "triad"], default="nstar")
-    s.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
-    s.add_argument("--overlay", metavar="PNG", help="write an overlay image for checking")
+    s.add_argument("--sigma", type=positive_float, default=5.0,
+                   help="detection threshold, sigmas")
+    s.add_argument("--overlay", metavar="PNG", type=image_path,
+                   help="write an overlay image for checking (.png, .jpg, .tif, ...)")
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=cmd_solve)
 
     sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo)")
     sm.add_argument("scenario", choices=["oedipus", "leo"])
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
-    sm.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    sm.add_argument("--duration", type=positive_float, default=60.0,
+                    help="seconds (default 60)")
     sm.add_argument("--seed", type=int, default=0)
     sm.add_argument("--no-render", action="store_true",
                     help="write star centroids instead of rendered images (fast)")
@@ -67,7 +189,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     rp.add_argument("-o", "--output", required=True, help="output .mcap")
     rp.add_argument("--no-gyro", action="store_true", help="ignore the gyro")
     rp.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
-    rp.add_argument("--mag-limit", type=float, default=None,
+    rp.add_argument("--mag-limit", type=magnitude_limit, default=None,
                     help="catalogue limit (default: the log's, else 5.5)")
     rp.add_argument("--compression", choices=["auto", "lz4", "zstd", "none"], default="auto",
                     help="output chunk compression (default auto: none for logs with camera "
@@ -88,7 +210,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     dm = sub.add_parser("demo", help="simulate a short OEDIPUS-like flight, replay it, report")
     dm.add_argument("-o", "--output", default="adfusion-demo", help="folder (default "
                     "./adfusion-demo)")
-    dm.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    dm.add_argument("--duration", type=positive_float, default=20.0,
+                    help="seconds (default 20)")
     dm.set_defaults(func=cmd_demo)
 
     b = sub.add_parser("bench", help="benchmarks against the peers (tetra3rs, cedar-solve)")
@@ -114,20 +237,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
+    # One handler for every command: a failure is one line on stderr and an exit code —
+    # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as e:
+    except UsageError as e:
         print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head`: not an error
         sys.stderr.close()
         return 0
+    except KeyboardInterrupt:
+        print(f"adfusion {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if os.environ.get("ADFUSION_DEBUG"):
+            raise
+        print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
+        return 1
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from adfusion import starid
     if args.example == bool(args.image):
-        raise ValueError("give an IMAGE or --example (one of them)")
+        raise UsageError("give an IMAGE or --example (one of them)")
+    if args.image:
+        _input_file(args.image, "image")
     truth_xy = None
     if args.example:
         from adfusion.app import examples
@@ -180,7 +315,11 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from adfusion.starid.detect import read_image
 
     if args.example == bool(args.image):
-        raise ValueError("give an IMAGE or --example (one of them)")
+        raise UsageError("give an IMAGE or --example (one of them)")
+    if args.image:
+        _input_file(args.image, "image")
+    if args.overlay:
+        _output_file(args.overlay, "--overlay")
     epoch = args.epoch if args.epoch is not None else _julian_year_now()
     truth_q = None
     if args.example:
@@ -191,7 +330,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         print(f"example: {ex.description}", file=sys.stderr)
     else:
         if args.fov is None:
-            raise ValueError("--fov (horizontal field of view estimate, degrees) is required")
+            raise UsageError("--fov (horizontal field of view estimate, degrees) is required")
         image = read_image(args.image)
         h, w = image.shape[:2]
         camera = starid.Camera.pinhole(w, h, args.fov)
@@ -284,8 +423,7 @@ def _scenario(name: str, duration: float, seed: int, render: bool):
 def cmd_simulate(args: argparse.Namespace) -> int:
     from adfusion.app.replay import simulate
 
-    if not args.duration > 0:
-        raise ValueError("--duration must be positive")
+    _output_file(args.output)
     t0 = time.perf_counter()
     n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render),
                  args.output, progress=sys.stderr.isatty())
@@ -297,6 +435,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from adfusion.app.replay import replay
 
+    _input_file(args.input, "MCAP")
+    _output_file(args.output)
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
                smooth=args.smooth, smooth_mode=args.smoother,
@@ -308,6 +448,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def cmd_report(args: argparse.Namespace) -> int:
     from adfusion.app.report import report
 
+    _input_file(args.log, "MCAP")
+    _output_folder(args.output)
     files = report(args.log, args.output)
     print("\n".join(str(f) for f in files))
     return 0
@@ -319,6 +461,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from adfusion.app.replay import replay, simulate
     from adfusion.app.report import report
 
+    _output_folder(args.output)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
