@@ -67,7 +67,8 @@ class ReadProblem:
 
     Attributes:
         path: the file.
-        offset: byte offset of the first record that could not be read.
+        offset: byte offset of the first record that could not be read (−1: a problem of
+            the whole file, e.g. a message count that does not add up).
         file_size: size of the file in bytes.
         last_good_t_s: latest message time before the break (``None`` if nothing was read).
         good_chunks: complete chunks read before the break.
@@ -89,6 +90,11 @@ class ReadProblem:
     lost_t_s: tuple[float, float] | None = None
 
     def __str__(self) -> str:
+        if self.offset < 0:  # not at one place: a count that does not add up, and the like
+            text = f"{self.path}: {self.reason}"
+            if self.lost_t_s is not None:
+                text += f" (t = {self.lost_t_s[0]:.6f}–{self.lost_t_s[1]:.6f} s)"
+            return text
         last = ("no messages before it" if self.last_good_t_s is None
                 else f"messages up to t = {self.last_good_t_s:.6f} s were read")
         text = (f"{self.path}: broken at byte {self.offset} of {self.file_size} "
@@ -209,6 +215,7 @@ class McapLogReader:
         self._walked_count: int | None = None
         self._reported: set[tuple[int, str]] = set()
         self._raw_metadata: dict[str, tuple[int, dict[str, str]]] = {}
+        self._undecodable: dict[str, tuple[int, str]] = {}  # topic → (count, first reason)
         self._attachment_at: dict[str, int] = {}
         self._scan()
         self._check_digests()
@@ -480,7 +487,7 @@ class McapLogReader:
                              f"lists {c.expected}")
         stated = self.stated_message_count
         if stated is not None and stated != self.message_count:
-            self._report(0, f"the file states {stated} messages, {self.message_count} "
+            self._report(-1, f"the file states {stated} messages, {self.message_count} "
                          "could be read", lost_messages=stated - self.message_count)
 
     def _parse(self, opcode: int, body: bytes, offset: int) -> bool:
@@ -582,8 +589,15 @@ class McapLogReader:
 
             schema = Schema(id=0, data=channel.schema_data, encoding=channel.schema_encoding,
                             name=channel.schema_name)
-            proto = DecoderFactory().decoder_for("protobuf", schema)
-            decoder = None if proto is None else (lambda data: MessageToDict(proto(data)))
+            try:
+                proto = DecoderFactory().decoder_for("protobuf", schema)
+            except Exception as exc:  # a schema we cannot build: its messages are undecodable
+                reason = f"schema {channel.schema_name!r} unusable: {type(exc).__name__}: {exc}"
+
+                def decoder(data: bytes, reason: str = reason) -> Any:
+                    raise ValueError(reason)
+            else:
+                decoder = None if proto is None else (lambda data: MessageToDict(proto(data)))
         else:
             warnings.warn(f"{self.path}: {channel.topic} uses {channel.message_encoding!r}, "
                           "which is not decoded; payloads are raw bytes", McapReadWarning,
@@ -603,9 +617,13 @@ class McapLogReader:
         try:
             payload = record.data if decoder is None else decoder(record.data)
         except Exception as exc:
-            warnings.warn(f"{self.path}: cannot decode {channel.topic} at t = "
-                          f"{record.log_time / 1e9:.6f} s ({exc}); skipped", McapReadWarning,
-                          stacklevel=3)
+            n, first = self._undecodable.get(channel.topic, (0, ""))
+            self._undecodable[channel.topic] = (n + 1, first or (
+                f"t = {record.log_time / 1e9:.6f} s: {type(exc).__name__}: {exc}"))
+            if n == 0:
+                warnings.warn(f"{self.path}: cannot decode {channel.topic} at t = "
+                              f"{record.log_time / 1e9:.6f} s ({exc}); skipped",
+                              McapReadWarning, stacklevel=3)
             return None
         # JSON and raw frames keep their bytes, so that a replay copies them as read
         keep = decoder is json.loads or channel.schema_name == "foxglove.RawImage"
@@ -698,20 +716,24 @@ class McapLogReader:
                     orphans[record.channel_id] = orphans.get(record.channel_id, 0) + 1
         if orphans:
             n = sum(orphans.values())
-            self._report(0, f"{n} message(s) on channel(s) {sorted(orphans)} whose channel "
+            self._report(-1, f"{n} message(s) on channel(s) {sorted(orphans)} whose channel "
                          "record was lost with the damage: skipped", lost_messages=n,
                          stacklevel=3)
         stated = self.stated_message_count
         if stated is not None and delivered != stated and delivered != self.message_count:
-            self._report(0, f"the file states {stated} messages, {delivered} could be read",
+            self._report(-1, f"the file states {stated} messages, {delivered} could be read",
                          lost_messages=stated - delivered, stacklevel=3)
 
     def messages(self) -> Iterator[Message]:
         """Decoded messages in log-time order, up to the break if the file is damaged."""
+        self._undecodable: dict[str, tuple[int, str]] = {}
         for _, record in self.raw_records():
             msg = self._message(record)
             if msg is not None:
                 yield msg
+        for topic, (n, first) in self._undecodable.items():
+            self._report(-1, f"{n} message(s) on {topic} could not be decoded (first at {first})"
+                         ": skipped", lost_messages=n, stacklevel=2)
 
     __iter__ = messages
 

@@ -24,7 +24,9 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".p
 
 
 class UsageError(ValueError):
-    """A command-line argument is wrong: exit code 2, like argparse's own usage errors."""
+    """The command line is wrong — a flag's value, a path that names no file, an output
+    that is a folder: exit code 2, like argparse's own usage errors. What is wrong inside
+    an input, or during a run, is exit code 1."""
 
 
 def _number(text: str, what: str = "a number") -> float:
@@ -91,10 +93,12 @@ def _output_folder(path: str, flag: str = "-o") -> None:
 
 
 def _input_file(path: str, what: str = "input") -> None:
+    """An input file named on the command line: it exists and is not a folder (a usage
+    error otherwise; what is wrong inside a file is an input problem, exit 1)."""
     if os.path.isdir(path):
-        raise ValueError(f"{path}: is a folder, not an {what} file")
+        raise UsageError(f"{path}: is a folder, not an {what} file")
     if not os.path.exists(path):
-        raise ValueError(f"{path}: no such file")
+        raise UsageError(f"{path}: no such file")
 
 
 def describe_error(exc: BaseException) -> str:
@@ -194,6 +198,12 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     rp.add_argument("--compression", choices=["auto", "lz4", "zstd", "none"], default="auto",
                     help="output chunk compression (default auto: none for logs with camera "
                          "images — noisy video gains 2 %% — else lz4; zstd: smallest)")
+    rp.add_argument("--config", metavar="JSON",
+                    help="the run configuration (q_body_cam, gyro noise, camera, mag_limit) "
+                         "for a log that lacks its config metadata")
+    rp.add_argument("--assume-defaults", action="store_true",
+                    help="replay a log without configuration with an identity camera mount "
+                         "and default noise (recorded in the output)")
     rp.add_argument("--json", action="store_true", help="print the summary as JSON")
     rp.add_argument("--smooth", action="store_true",
                     help="also smooth the whole log (GTSAM) into /smoothed/state and "
@@ -236,7 +246,10 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
+    try:
+        args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
+    except SystemExit as e:  # --help (0) or a usage error (2), already printed by argparse
+        return e.code if isinstance(e.code, int) else 2
     # One handler for every command: a failure is one line on stderr and an exit code —
     # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
@@ -437,22 +450,39 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     _input_file(args.input, "MCAP")
     _output_file(args.output)
+    config = None
+    if args.config:
+        _input_file(args.config, "JSON")
+        try:
+            with open(args.config, encoding="utf-8") as f:
+                config = json.load(f)
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{args.config}: not a JSON file ({exc})") from None
+        if not isinstance(config, dict):
+            raise ValueError(f"{args.config}: the configuration must be a JSON object")
     s = replay(args.input, args.output, use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                mag_limit=args.mag_limit, progress=sys.stderr.isatty(),
                smooth=args.smooth, smooth_mode=args.smoother,
-               compression=args.compression)
+               compression=args.compression, config=config,
+               assume_defaults=args.assume_defaults)
     print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
-    return 1 if s.smoother.get("error") else 0  # the filter's output is written either way
+    # the output is written either way; 1 says it carries problems (listed above)
+    return 1 if s.smoother.get("error") or s.problems else 0
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from adfusion.app.report import report
+    from adfusion.app.report import log_problems, report
 
     _input_file(args.log, "MCAP")
     _output_folder(args.output)
+    from adfusion.logs import McapLogReader
+
     files = report(args.log, args.output)
     print("\n".join(str(f) for f in files))
-    return 0
+    problems = log_problems(McapLogReader(args.log, warn=False))
+    for p in problems:
+        print(f"problem: {p}")
+    return 1 if problems else 0
 
 
 def cmd_demo(args: argparse.Namespace) -> int:

@@ -27,7 +27,7 @@ import numpy as np
 from adfusion.logs import McapLogReader
 from adfusion.starid import rotations as rot
 
-__all__ = ["report"]
+__all__ = ["log_problems", "report"]
 
 
 def report(log_path: str | Path, out_dir: str | Path) -> list[Path]:
@@ -44,28 +44,37 @@ def report(log_path: str | Path, out_dir: str | Path) -> list[Path]:
     sol_t, sol_mode, sol_ok = [], [], []
     sm_t, sm_q, sm_b, sm_var = [], [], [], []  # /smoothed/state (replay --smooth)
     reader = McapLogReader(log_path)
+    unreadable: dict[str, int] = {}  # topic → messages whose payload is not ours
     for m in reader:
         p = m.payload
-        if m.topic == "/estimate/state":
-            est_t.append(m.t_s)
-            est_q.append(p["q_body_icrs"])
-            est_b.append(p["bias"])
-            est_var.append(p["cov_diag"])
-            for v in (p.get("nis") or {}).values():
-                nis_t.append(m.t_s)
-                nis_v.append(v)
-        elif m.topic == "/smoothed/state":
-            sm_t.append(m.t_s)
-            sm_q.append(p["q_body_icrs"])
-            sm_b.append(p["bias"])
-            sm_var.append(p["cov_diag"])
-        elif m.topic == "/truth/state":
-            tru_t.append(m.t_s)
-            tru_q.append(p["q_body_icrs"])
-        elif m.topic == "/starid/solution":
-            sol_t.append(m.t_s)
-            sol_mode.append(p["mode"])
-            sol_ok.append(bool(p.get("fix_accepted", p["ok"])))
+        try:
+            if m.topic == "/estimate/state":
+                row = (p["q_body_icrs"], p["bias"], p["cov_diag"])
+                nis = list((p.get("nis") or {}).values())
+                est_t.append(m.t_s)
+                est_q.append(row[0])
+                est_b.append(row[1])
+                est_var.append(row[2])
+                for v in nis:
+                    nis_t.append(m.t_s)
+                    nis_v.append(v)
+            elif m.topic == "/smoothed/state":
+                row = (p["q_body_icrs"], p["bias"], p["cov_diag"])
+                sm_t.append(m.t_s)
+                sm_q.append(row[0])
+                sm_b.append(row[1])
+                sm_var.append(row[2])
+            elif m.topic == "/truth/state":
+                q = p["q_body_icrs"]
+                tru_t.append(m.t_s)
+                tru_q.append(q)
+            elif m.topic == "/starid/solution":
+                mode, ok = p["mode"], bool(p.get("fix_accepted", p["ok"]))
+                sol_t.append(m.t_s)
+                sol_mode.append(mode)
+                sol_ok.append(ok)
+        except (KeyError, TypeError, AttributeError):
+            unreadable[m.topic] = unreadable.get(m.topic, 0) + 1
     files: list[Path] = []
     est_t, est_q = np.asarray(est_t), np.asarray(est_q, dtype=float).reshape(-1, 4)
     est_var = np.asarray(est_var, dtype=float).reshape(-1, 6)
@@ -152,13 +161,35 @@ def report(log_path: str | Path, out_dir: str | Path) -> list[Path]:
     ax.set(xlabel="t [s]", ylabel="NIS", title="Innovation NIS (star fixes: 3 dof)")
     files.append(_save(fig, out / "nis.png"))
 
-    if reader.problem is not None:
-        lines += [f"- input problem: {reader.problem}", ""]
+    found = log_problems(reader)
+    found += [f"{n} message(s) on {t} are not in adfusion's format: not plotted"
+              for t, n in unreadable.items()]
+    if found:
+        lines += ["## Problems", ""] + [f"- {p}" for p in found] + [""]
     lines += ["Plots: " + ", ".join(f"[{f.name}]({f.name})" for f in files), ""]
     md = out / "summary.md"
     md.write_text("\n".join(lines))
     files.append(md)
     return files
+
+
+def log_problems(reader: McapLogReader) -> list[str]:
+    """What a replayed log says went wrong: damage found reading it, the run's input
+    problems and dropped counts (``problems`` metadata), an ``incomplete`` run, and the
+    defaults it assumed (``assumptions``)."""
+    out = [f"reading this log: {p}" for p in reader.problems]
+    inc = reader.metadata.get("incomplete")
+    if isinstance(inc, dict):
+        out.append(f"INCOMPLETE run: {inc.get('reason', '?')} "
+                   f"({inc.get('messages_written', '?')} messages written)")
+    probs = reader.metadata.get("problems")
+    if isinstance(probs, dict):
+        out += [f"input: {p}" for p in probs.get("input", []) if isinstance(p, str)]
+    assumed = reader.metadata.get("assumptions")
+    if isinstance(assumed, dict) and assumed:
+        out.append("assumed (the input had no configuration): " + ", ".join(
+            f"{k} = {v}" for k, v in assumed.items()))
+    return out
 
 
 def _save(fig, path: Path) -> Path:

@@ -73,3 +73,9 @@ class McapInput:
     @property
     def problem(self) -> str | None:
         return None if self.reader.problem is None else str(self.reader.problem)
+
+    @property
+    def problems(self) -> list[str]:
+        """Every problem the reader found (read after iterating: a chunk failing its CRC
+        is found when reached)."""
+        return [str(p) for p in self.reader.problems]
