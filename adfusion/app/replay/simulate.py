@@ -33,7 +33,8 @@ def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
 
         bar = tqdm(total=len(scenario.t_frame), unit="frame", desc="simulate",
                    mininterval=0.5)
-    with LogWriter(out_path) as log:
+    # written as out_path + ".partial", renamed when complete; a failure marks it incomplete
+    with LogWriter(out_path, atomic=True) as log:
         log.add_metadata("config", to_jsonable(scenario.config))
         log.add_camera_model(scenario.camera.to_dict())
         cam = scenario.camera
