@@ -140,10 +140,10 @@ class PatternIndex:
         object.__setattr__(self, "_neg_pair_cos", -self.pair_cos)  # ascending search key
 
 
-#: Star pairs an index may hold (~100 bytes each while it is built): 10× what a 25° field
+#: Star pairs an index may hold (~100 bytes each while it is built): 2× what a 45° field
 #: at V 6.5 needs. Beyond it the pair search runs out of memory after tens of seconds
 #: (``std::bad_alloc``), so the estimate below refuses it at once.
-MAX_PAIRS = 50_000_000
+MAX_PAIRS = 20_000_000
 
 
 def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:

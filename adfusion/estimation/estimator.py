@@ -304,7 +304,7 @@ class Estimator:
                 detect = starid.detect
             try:
                 detections = detect(frame, self.solver.camera)
-            except (ValueError, FileNotFoundError) as e:
+            except (ValueError, TypeError, FileNotFoundError) as e:
                 rec.rejected.append(("camera", f"detection failed: {e}"))
                 return
         rec.sensors.append("camera")
@@ -322,7 +322,7 @@ class Estimator:
             prior = Prior(q_cam_icrs, sigma, smear_cam_rad=self._smear(exposure_s))
         try:
             sol = self.solver.solve(detections, prior=prior)
-        except ValueError as e:
+        except (ValueError, TypeError) as e:
             rec.rejected.append(("camera", f"bad detections: {e}"))
             self.misses += 1
             return
