@@ -525,8 +525,8 @@ class McapLogReader:
             att = Attachment.read(stream)
             (crc,) = struct.unpack_from("<I", body, len(body) - 4)
             if crc and zlib.crc32(body[:-4]) != crc:
-                self._report(offset, f"attachment {att.name!r} fails its CRC: not used",
-                             stacklevel=5)
+                self._report(-1, f"attachment {att.name!r} (byte {offset}) fails its CRC: "
+                             "not used", stacklevel=5)
             else:
                 self.attachments[att.name] = (att.media_type, att.data)
                 self._attachment_at[att.name] = offset
@@ -553,14 +553,15 @@ class McapLogReader:
                 continue
             if digest_metadata(raw) != want:
                 self.metadata.pop(name, None)
-                self._report(offset, f"metadata {name!r} does not match its recorded digest "
-                             "(changed after recording): not used")
+                self._report(-1, f"metadata {name!r} (byte {offset}) does not match its "
+                             "recorded digest (changed after recording): not used")
         for name, (_, data) in list(self.attachments.items()):
             want = digests.get(f"attachment:{name}")
             if want is not None and hashlib.sha256(data).hexdigest() != want:
                 self.attachments.pop(name)
-                self._report(self._attachment_at.get(name, 0), f"attachment {name!r} does not "
-                             "match its recorded digest (changed after recording): not used")
+                self._report(-1, f"attachment {name!r} (byte {self._attachment_at.get(name)})"
+                             " does not match its recorded digest (changed after recording): "
+                             "not used")
         self.metadata.pop(DIGESTS, None)
 
     # ------------------------------------------------------------------ decoding
