@@ -232,8 +232,10 @@ def check_solver(bank: SolverBank, seed: int, fov_deg: float, n_false: int,
     error = float(rot.angle_between(sol.q_cam_icrs, q))
     sigma = float(np.sqrt(np.max(np.linalg.eigvalsh(sol.covariance))))
     if error > max(10 * sigma, np.radians(0.2)):
-        raise FuzzViolation("wrong-attitude", f"solve seed {seed} fov {fov_deg} "
-                            f"{sol.mode}: accepted {np.degrees(error):.3f}° off "
+        case = (f"check_solver(bank, {seed}, {fov_deg}, {n_false}, {drop_frac}, {sigma_px}, "
+                f"{prior!r}, {prior_error_deg}, {prior_sigma_deg})")
+        raise FuzzViolation("wrong-attitude", f"{case} {sol.mode} with {len(sol.matches)} "
+                            f"stars: accepted {np.degrees(error):.3f}° off "
                             f"(σ {np.degrees(sigma):.4f}°, p_false {sol.p_false:.1e})")
     return "ok"
 
