@@ -1,6 +1,7 @@
 """Benchmark `starid.detect` against tetra3rs's centroid extractors on the real frames.
 
-For each frame of ``shared/data/real-images`` (1024×768 uint16) this times, on the same array:
+For each frame of both real sets, ``shared/data/real-images`` (1024×768 uint16 TIFF) and
+``shared/data/real-images-cedar`` (13 JPEG frames, grey), this times, on the same array:
 
 * ``starid.detect`` with OpenCV's default thread count and with ``cv2.setNumThreads(1)``;
 * ``tetra3rs.extract_centroids`` with its default threads and ``threads=1``;
@@ -12,9 +13,13 @@ ours / tetra3rs for matching thread settings. It also cross-matches the centroid
 of tetra3rs's centroids we also report within 1 px (tetra3rs reports positions relative to the
 image centre; they are shifted to our 0-based pixel-centre convention first).
 
+With ``--identify`` it also times detection + identification per frame (the frame's
+reference FOV ±25 % as the range, the catalogue to V 6.5; the solver warmed up first),
+the issue-14 figure (median ≤ 20 ms).
+
 Usage (from the repository root)::
 
-    /tmp/venv/bin/python benchmarks/bench_detect.py [--json] [--rounds 30] [--data DIR]
+    python benchmarks/bench_detect.py [--json] [--rounds 30] [--identify] [--data DIR ...]
 
 Example:
     >>> import numpy as np
@@ -49,7 +54,9 @@ try:
 except ImportError:  # optional peer, the "bench" extra
     tetra3rs = None
 
-DEFAULT_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real-images"
+_SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+DEFAULT_DATA = [_SHARED / "real-images", _SHARED / "real-images-cedar"]
+_IMAGE_SUFFIXES = (".tiff", ".tif", ".png", ".jpg", ".jpeg")
 
 
 def _tetra3rs_xy(result: Any, shape: tuple[int, int]) -> np.ndarray:
@@ -130,6 +137,37 @@ def bench_frame(name: str, img: np.ndarray, rounds: int = 30, warmup: int = 3) -
     return out
 
 
+_CATALOG: Any = None
+
+
+def bench_identify(path: Path, img: np.ndarray, rounds: int) -> dict[str, Any] | None:
+    """Median wall time (ms) of detection + identification of one frame, with the frame's
+    reference FOV (``truth.json`` beside it) ±25 % as the range; None without a reference."""
+    global _CATALOG
+    from adfusion import starid
+
+    truth_file = path.parent / "truth.json"
+    if not truth_file.is_file():
+        return None
+    t = json.loads(truth_file.read_text()).get(path.stem)
+    if t is None:
+        return None
+    if _CATALOG is None:
+        _CATALOG = starid.Catalog.hipparcos(mag_limit=6.5, epoch=2020.0)
+    fov = t["fov_x_deg"]
+    cam = starid.Camera.pinhole(img.shape[1], img.shape[0], fov)
+    solver = starid.Solver(_CATALOG, cam, fov_range_deg=(0.75 * fov, 1.25 * fov))
+    solver.warm_up()
+    times, ok = [], False
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        sol = solver.solve(detect(img, cam))
+        times.append((time.perf_counter() - t0) * 1e3)
+        ok = sol.ok
+    return {"ms": round(statistics.median(times), 3), "ok": bool(ok),
+            "stars": len(sol.matches)}
+
+
 def _machine() -> dict[str, Any]:
     return machine_info(extra={
         "opencv": cv2.__version__, "opencv_default_threads": cv2.getNumThreads(),
@@ -141,23 +179,37 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON document")
     ap.add_argument("--rounds", type=int, default=30, help="timed rounds per frame (>= 20)")
     ap.add_argument("--warmup", type=int, default=3)
-    ap.add_argument("--data", type=Path, default=DEFAULT_DATA, help="folder of .tiff frames")
+    ap.add_argument("--data", type=Path, nargs="+", default=DEFAULT_DATA,
+                    help="folders of frames (default: both shared real sets)")
+    ap.add_argument("--identify", action="store_true",
+                    help="also time detection + identification (FOV ±25 %%)")
     args = ap.parse_args(argv)
 
-    frames = sorted(args.data.glob("*.tiff"))
+    frames = sorted(p for d in args.data for p in d.glob("*")
+                    if p.suffix.lower() in _IMAGE_SUFFIXES)
     if not frames:
-        print(f"no .tiff frames in {args.data}", file=sys.stderr)
+        print(f"no image frames in {[str(d) for d in args.data]}", file=sys.stderr)
         return 2
+    from adfusion.starid.detect import read_image
+
     results = []
     for path in frames:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
-        results.append(bench_frame(path.stem, img, args.rounds, args.warmup))
+        img = read_image(path)
+        r = bench_frame(f"{path.parent.name}/{path.stem}", img, args.rounds, args.warmup)
+        if args.identify:
+            r["identify"] = bench_identify(path, img, max(5, args.rounds // 3))
+        results.append(r)
 
     summary: dict[str, Any] = {
         "median_ms": {
             k: round(statistics.median(r["ms"][k] for r in results), 3) for k in results[0]["ms"]
         }
     }
+    if args.identify:
+        ident = [r["identify"] for r in results if r.get("identify")]
+        summary["detect_plus_identify_median_ms"] = round(
+            statistics.median(i["ms"] for i in ident), 3)
+        summary["identified"] = f"{sum(i['ok'] for i in ident)}/{len(ident)}"
     if tetra3rs is not None:
         for key in results[0]["ratio"]:
             summary.setdefault("ratio_median", {})[key] = round(
@@ -183,6 +235,14 @@ def main(argv: list[str] | None = None) -> int:
         n3 = r["counts"].get("tetra3rs", "-")
         print(f"{r['frame'][:34]:34s} {times}   {r['counts']['starid']:7d} {n3!s:>7s}")
     print("median ms:", summary["median_ms"])
+    if args.identify:
+        for r in results:
+            if r.get("identify"):
+                i = r["identify"]
+                print(f"  {r['frame'][:40]:40s} detect+identify {i['ms']:8.1f} ms "
+                      f"{'ok' if i['ok'] else 'not ok'} {i['stars']} stars")
+        print("detect+identify median ms:", summary["detect_plus_identify_median_ms"],
+              "identified", summary["identified"])
     if tetra3rs is None:
         print(report["tetra3rs"])
     else:

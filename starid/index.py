@@ -12,18 +12,26 @@ Separations are stored as cosines (dot products), as in Renken's matcher (renken
 descending cosine = ascending angle. Built once per (catalogue, max separation) and cached
 on disk (:mod:`starid.cache`).
 
-Example:
-    >>> import numpy as np
-    >>> from adfusion.starid.index import PatternIndex
-    >>> v = np.array([[1, 0, 0], [np.cos(0.1), np.sin(0.1), 0], [0, 1, 0.0]])
-    >>> idx = PatternIndex.from_vectors(v, max_sep_rad=0.5)
-    >>> idx.pairs_in_window(np.cos(0.11), np.cos(0.09))
-    (array([0]), array([1]))
+Deep catalogues: the build estimates its memory from a sample of the stars *before*
+allocating anything and refuses, with a one-line :class:`IndexTooLarge`, an index whose
+build would exceed ``max_bytes`` (``$ADFUSION_INDEX_MAX_GB``, default 1.5 GB). Select the
+brightest stars per sky cell first (:func:`adfusion.starid.coverage.uniform_coverage`) to
+bound it for any magnitude limit.
+
+The epoch: a cache entry is keyed by the catalogue's stars (ids and magnitudes), not by
+their positions, and keeps the positions it was built from. A catalogue of the same stars
+at another epoch reuses it while no star has moved more than ``reuse_drift_rad`` (5″ by
+default), with the current positions in ``vectors`` (what the matchers' link tests and the
+verification use) and the pair cosines of the build epoch (stale by at most twice the
+drift, a tenth of the narrowest pair window); beyond that it is rebuilt in place, so the
+cache holds one entry per star set and camera.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,11 +39,94 @@ from adfusion.starid.cache import cached_arrays
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-__all__ = ["PatternIndex"]
+__all__ = ["IndexTooLarge", "PatternIndex", "catalog_cache_tag", "estimate_build_bytes",
+           "estimate_pairs", "max_index_bytes"]
 
 IntArray = NDArray[np.int64]
 N_BINS = 512  # angle bins per neighbour row (≈ 0.04° for a 20° field)
-INDEX_LAYOUT = 2  # bump when the stored arrays change: old cache entries are then ignored
+INDEX_LAYOUT = 3  # bump when the stored arrays change: old cache entries are then ignored
+DEFAULT_MAX_GB = 1.5
+# 5″: a tenth of the smallest pair tolerance in use (≥ 0.003° + the centroid term), so a
+# reused index's pair cosines are stale by far less than its windows; α Cen (3.7″/yr) and
+# Groombridge 1830 (7″/yr, V 6.4) trigger a rebuild every year or so, nothing else does
+REUSE_DRIFT_RAD = math.radians(5.0 / 3600.0)
+# peak bytes of the build per pair and per star (measured: benchmarks/bench_deep_index.py;
+# the stored arrays take 40 B a pair and 2 kB a star, the sorts' temporaries the rest)
+_BUILD_BYTES_PER_PAIR = 88
+_BUILD_BYTES_PER_STAR = 4 * (N_BINS + 1) + 200
+_BIN_BLOCK = 4096  # rows per block of the bin-table build
+
+
+class IndexTooLarge(ValueError):
+    """The pattern index would need more memory than allowed (raised before allocating)."""
+
+
+def max_index_bytes() -> int:
+    """The build's memory bound: ``$ADFUSION_INDEX_MAX_GB`` gigabytes (default 1.5).
+
+    >>> max_index_bytes() > 0
+    True
+    """
+    env = os.environ.get("ADFUSION_INDEX_MAX_GB", "").strip()
+    try:
+        gb = float(env) if env else DEFAULT_MAX_GB
+    except ValueError:
+        raise ValueError(f"ADFUSION_INDEX_MAX_GB must be a number of gigabytes, got {env!r}")\
+            from None
+    if not gb > 0:
+        raise ValueError(f"ADFUSION_INDEX_MAX_GB must be positive, got {env!r}")
+    return int(gb * 1e9)
+
+
+def estimate_pairs(vectors: NDArray[np.float64], max_sep_rad: float,
+                   sample: int = 2000) -> int:
+    """Expected number of pairs closer than ``max_sep_rad``, from a fixed sample of stars.
+
+    Exact up to ``sample`` stars; beyond, the neighbour count of an evenly strided sample
+    scaled up (a few per cent, never allocating the pairs themselves).
+
+    >>> v = np.array([[1, 0, 0], [np.cos(0.1), np.sin(0.1), 0], [0, 1, 0.0]])
+    >>> estimate_pairs(v, 0.5)
+    1
+    """
+    v = np.asarray(vectors, dtype=np.float64)
+    n = len(v)
+    if n < 2:
+        return 0
+    tree = cKDTree(v)
+    chord = 2.0 * math.sin(0.5 * min(max_sep_rad, math.pi))
+    pick = np.unique(np.linspace(0, n - 1, min(n, sample)).astype(np.int64))
+    counts = tree.query_ball_point(v[pick], chord, return_length=True) - 1
+    return round(float(np.mean(counts)) * n / 2.0)
+
+
+def estimate_build_bytes(n_stars: int, n_pairs: int) -> int:
+    """Peak memory (bytes) of building an index of ``n_pairs`` pairs over ``n_stars``.
+
+    >>> estimate_build_bytes(10_000, 1_000_000) // 10**6
+    110
+    """
+    return int(n_pairs) * _BUILD_BYTES_PER_PAIR + int(n_stars) * _BUILD_BYTES_PER_STAR
+
+
+def catalog_cache_tag(catalog) -> str:
+    """Cache identity of a catalogue's star set: its ids and magnitudes, not its epoch.
+
+    Anything with ``ids`` (and optionally ``mag``) works; positions are checked on load
+    (see the module docstring), so two catalogues that share ids but not positions never
+    share an index.
+
+    >>> from adfusion.starid.catalog import Catalog
+    >>> a = Catalog.hipparcos(mag_limit=3.0, epoch=2020.0)
+    >>> b = Catalog.hipparcos(mag_limit=3.0, epoch=2030.0)
+    >>> catalog_cache_tag(a) == catalog_cache_tag(b)
+    True
+    """
+    h = hashlib.sha1(np.ascontiguousarray(np.asarray(catalog.ids, np.int64)).tobytes())
+    mag = getattr(catalog, "mag", None)
+    if mag is not None:
+        h.update(np.ascontiguousarray(np.asarray(mag, np.float64)).tobytes())
+    return h.hexdigest()
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,24 +145,39 @@ class PatternIndex:
 
     @classmethod
     def from_vectors(
-        cls, vectors: NDArray[np.float64], max_sep_rad: float, cache_tag: str | None = None
+        cls, vectors: NDArray[np.float64], max_sep_rad: float, cache_tag: str | None = None,
+        *, max_bytes: int | None = None, reuse_drift_rad: float = REUSE_DRIFT_RAD,
     ) -> PatternIndex:
-        """Build (or load from the cache, when ``cache_tag`` names the catalogue) the index."""
+        """Build (or load from the cache, when ``cache_tag`` names the catalogue) the index.
+
+        ``max_bytes`` bounds the build's memory (default :func:`max_index_bytes`): a
+        larger index raises :class:`IndexTooLarge` before anything is allocated.
+        """
         v = np.ascontiguousarray(vectors, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 3 or not np.all(np.isfinite(v)):
             raise ValueError("catalogue vectors must be a finite (N, 3) array")
         if not 0 < max_sep_rad <= np.pi:
             raise ValueError(f"max_sep_rad must be in (0, π], got {max_sep_rad}")
+        limit = max_index_bytes() if max_bytes is None else int(max_bytes)
 
         def build() -> dict[str, np.ndarray]:
-            return _build(v, max_sep_rad)
+            _check_size(v, max_sep_rad, limit)
+            return {**_build(v, max_sep_rad), "built_vectors": v}
 
         if cache_tag is None:
             arrays = build()
         else:
             params = {"max_sep_rad": float(max_sep_rad), "catalog": cache_tag, "n": len(v),
                       "layout": INDEX_LAYOUT}
-            arrays = cached_arrays("pattern-index", params, [], build)
+
+            def fresh(a: dict[str, np.ndarray]) -> bool:  # the entry's stars still in place
+                old = a.get("built_vectors")
+                return (old is not None and old.shape == v.shape
+                        and float(np.max(np.linalg.norm(old - v, axis=1), initial=0.0))
+                        <= reuse_drift_rad)
+
+            arrays = cached_arrays("pattern-index", params, [], build, valid=fresh)
+        arrays = {k: a for k, a in arrays.items() if k != "built_vectors"}
         return cls(v, float(max_sep_rad), **arrays)
 
     @property
@@ -140,53 +246,76 @@ class PatternIndex:
         object.__setattr__(self, "_neg_pair_cos", -self.pair_cos)  # ascending search key
 
 
-#: Star pairs an index may hold (~100 bytes each while it is built): 2× what a 45° field
-#: at V 6.5 needs. Beyond it the pair search runs out of memory after tens of seconds
-#: (``std::bad_alloc``), so the estimate below refuses it at once.
-MAX_PAIRS = 20_000_000
+def _check_size(v: NDArray[np.float64], max_sep_rad: float, limit: int) -> None:
+    n_pairs = estimate_pairs(v, max_sep_rad)
+    need = estimate_build_bytes(len(v), n_pairs)
+    if need > limit:
+        raise IndexTooLarge(
+            f"the pattern index of {len(v)} stars within {math.degrees(max_sep_rad):.2f}° "
+            f"(~{n_pairs:,} pairs) needs ~{need / 1e9:.1f} GB to build, over the "
+            f"{limit / 1e9:.1f} GB bound: keep the brightest stars per sky cell "
+            f"(--stars-per-fov / starid.coverage.uniform_coverage), lower the magnitude "
+            f"limit, or raise ADFUSION_INDEX_MAX_GB")
 
 
 def _build(v: NDArray[np.float64], max_sep_rad: float) -> dict[str, np.ndarray]:
     chord = 2.0 * np.sin(0.5 * max_sep_rad)
-    # pairs of N stars spread over the sphere that lie within max_sep of each other
-    expected = 0.5 * len(v) * (len(v) - 1) * 0.5 * (1.0 - np.cos(max_sep_rad))
-    if expected > MAX_PAIRS:
-        raise ValueError(
-            f"{len(v)} catalogue stars within {np.degrees(max_sep_rad):.1f}° of each other "
-            f"make ~{expected:.2g} pairs (at most {MAX_PAIRS:.0e} fit in memory): use a lower "
-            "magnitude limit or a narrower field")
     tree = cKDTree(v)
-    pairs = tree.query_pairs(chord, output_type="ndarray").astype(np.int64)
+    pairs = tree.query_pairs(chord, output_type="ndarray")
+    del tree
     if len(pairs) == 0:
         pairs = np.zeros((0, 2), np.int64)
-    i, j = pairs[:, 0], pairs[:, 1]
-    swap = i > j
-    i, j = np.where(swap, j, i), np.where(swap, i, j)
-    cos = np.einsum("ij,ij->i", v[i], v[j])
-    order = np.lexsort((j, i, -cos))  # descending cosine, ties by index: deterministic
+    # int32 throughout (a catalogue has < 2³¹ stars): half the memory of int64
+    a, b = pairs[:, 0].astype(np.int32), pairs[:, 1].astype(np.int32)
+    del pairs
+    i, j = np.minimum(a, b), np.maximum(a, b)
+    del a, b
+    cos = _dots(v, i, j)
+    # descending cosine; exact ties (synthetic catalogues) by (i, j), for determinism
+    order = np.argsort(-cos)
+    if len(cos) > 1 and np.any(np.diff(cos[order]) == 0):
+        order = np.lexsort((j, i, -cos))
     pi, pj, pc = i[order], j[order], cos[order]
-    # CSR over both directions, each row sorted by descending cosine
-    rows = np.concatenate([pi, pj])
-    cols = np.concatenate([pj, pi])
-    cc = np.concatenate([pc, pc])
-    o = np.lexsort((cols, -cc, rows))
-    rows, cols, cc = rows[o], cols[o], cc[o]
+    del i, j, cos, order
+    # CSR over both directions, each row in the pairs' order (descending cosine): both
+    # directions of a pair side by side, then sorted by (row, position) — distinct keys,
+    # so a plain (fast) sort gives the stable order
+    rows = np.stack([pi, pj], axis=1).ravel()
+    key = rows.astype(np.int64) * max(2 * len(pi), 1)
+    key += np.arange(2 * len(pi))
+    o = np.argsort(key)
+    del key
+    rows = rows[o]
+    cols = np.stack([pj, pi], axis=1).ravel()[o]
+    cc = np.repeat(pc, 2)[o]
+    del o
+    counts = np.bincount(rows, minlength=len(v))
     ptr = np.zeros(len(v) + 1, np.int64)
-    np.add.at(ptr, rows + 1, 1)
-    ptr = np.cumsum(ptr)
-    # bin table: one sorted global key (row·4 + angle) searched for every (row, edge)
-    edges = np.linspace(0.0, max_sep_rad, N_BINS + 1)
-    key = rows * 4.0 + np.arccos(np.clip(cc, -1.0, 1.0))
-    queries = (np.arange(len(v))[:, None] * 4.0 + edges[None, :]).ravel()
-    table = np.searchsorted(key, queries, side="left").reshape(len(v), N_BINS + 1)
+    np.cumsum(counts, out=ptr[1:])
+    # bin table: entries per (row, angle bin) counted, then running sums within each row,
+    # a block of rows at a time so the counts never take more than a few MB
+    step = max_sep_rad / N_BINS
+    table = np.empty((len(v), N_BINS + 1), np.int32)
+    for r0 in range(0, len(v), _BIN_BLOCK):
+        r1 = min(r0 + _BIN_BLOCK, len(v))
+        e0, e1 = int(ptr[r0]), int(ptr[r1])
+        ang = np.arccos(np.clip(cc[e0:e1], -1.0, 1.0))
+        b = np.minimum((ang / step).astype(np.int64), N_BINS - 1)
+        b += (rows[e0:e1].astype(np.int64) - r0) * N_BINS
+        per_bin = np.bincount(b, minlength=(r1 - r0) * N_BINS).reshape(r1 - r0, N_BINS)
+        table[r0:r1, 0] = ptr[r0:r1]
+        table[r0:r1, 1:] = np.cumsum(per_bin, axis=1) + ptr[r0:r1, None]
     table[:, -1] = ptr[1:]  # the last edge closes the row (max_sep itself may round)
     return {
-        "pair_i": pi.astype(np.int32),
-        "pair_j": pj.astype(np.int32),
-        "pair_cos": pc,
-        "nbr_ptr": ptr,
-        "nbr_idx": cols.astype(np.int32),
-        "nbr_cos": cc,
-        "nbr_bin": table.astype(np.int32),
+        "pair_i": pi, "pair_j": pj, "pair_cos": pc, "nbr_ptr": ptr,
+        "nbr_idx": cols, "nbr_cos": cc, "nbr_bin": table,
     }
 
+
+def _dots(v: NDArray[np.float64], i: NDArray, j: NDArray) -> NDArray[np.float64]:
+    """``v[i] · v[j]`` row by row, a block at a time (no (P, 3) temporaries)."""
+    out = np.empty(len(i))
+    for k in range(0, len(i), 1 << 20):
+        a, b = v[i[k:k + (1 << 20)]], v[j[k:k + (1 << 20)]]
+        out[k:k + len(a)] = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1] + a[:, 2] * b[:, 2]
+    return out

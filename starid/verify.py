@@ -25,16 +25,35 @@ Example:
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
+from adfusion.starid import rotations as rot
+from adfusion.starid.attitude import wahba_unit
+from adfusion.starid.calibrate import fit_camera
+from adfusion.starid.camera import Camera
+from adfusion.starid.nstar import chirality_of
+from adfusion.starid.solution import Candidate
 from numpy.typing import NDArray
 from scipy.special import bdtrc
 
+if TYPE_CHECKING:
+    from adfusion.starid.lost_in_space import PairWindows
+
 __all__ = [
+    "Verification",
     "binomial_tail",
+    "distinct_candidates",
     "expected_chance_patterns",
+    "keeps_pattern",
+    "one_to_one",
+    "quick_tuples",
+    "rotation_from_pairs",
     "spot_geometry",
+    "variance_factor",
 ]
+
+_3_SQRT2 = 3.0 * math.sqrt(2.0)
 
 # mean catalogue density is doubled: the Milky Way holds several times the mean at V ~ 6
 DENSITY_SAFETY = 2.0
@@ -103,3 +122,177 @@ def _crossing_angle(d01: float, d0m: float, d1m: float) -> float:
         return 0.0
     c = (math.cos(d01) - math.cos(d0m) * math.cos(d1m)) / denom
     return math.acos(min(1.0, max(-1.0, c)))
+
+
+# --- candidate verification (the solver's, for every search path) -----------------------
+
+
+class Verification:
+    """The :class:`starid.Solver`'s verification of candidate identifications: the quick
+    check of every assignment of a pattern (compiled), the full refit of the ones that pass
+    and their false-match probability. A mixin: it uses the solver's catalogue
+    (``vectors``, ``ids``, ``index``, ``_tree``) and settings.
+
+    >>> from adfusion.starid.solver import Solver
+    >>> issubclass(Solver, Verification)
+    True
+    """
+
+    def _match_radius_px(self) -> float:
+        return max(_3_SQRT2 * self.centroid_sigma_px, 1.5)
+
+    def _p_hit(self, anchor: int, radius_rad: float) -> float:
+        """Chance that a random detection falls within the match radius of a catalogue
+        star: local density (neighbours of the anchor star within the index radius), at
+        least the sky mean, times a safety factor."""
+        cnt = self.index.nbr_ptr[anchor + 1] - self.index.nbr_ptr[anchor]
+        area = 2 * np.pi * (1 - np.cos(self.max_sep_rad))
+        rho = max(cnt / area, len(self.vectors) / (4 * np.pi)) * DENSITY_SAFETY
+        return min(1.0, rho * np.pi * radius_rad**2)
+
+    def _associate_icrs(self, b_all: NDArray, R: NDArray,
+                        radius_rad: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Detections ↔ catalogue stars within a radius, at attitude R (cam ← icrs): each
+        detection's nearest star, one-to-one (a star claimed twice goes to the closer)."""
+        d, j = self._tree.query(b_all @ R, distance_upper_bound=2 * np.sin(radius_rad / 2))
+        return one_to_one(d, j)
+
+    def _quick(self, b_all: NDArray, table: PairWindows | None, sel: NDArray,
+               assigns: NDArray, cam: Camera, trials: int, chance: tuple | None = None,
+               ) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
+        """Cheap verification of every assignment (K, n) of one pattern
+        (:func:`kernels.quick_checks`): attitude from the pattern, every detection
+        rotated into ICRS and associated. Per assignment (p_false, R, e_trials,
+        detection indices, catalogue indices), or None.
+
+        ``e_trials`` is the expected number of chance patterns fitting *as well as this
+        candidate does* — windows shrunk to its own pair residuals, but never below the
+        centroid noise — times the trials so far (a union bound over the search). The
+        pattern's angles and windows come from ``table`` (or ``chance`` = (angles, window
+        half-widths, mirror checked))."""
+        if chance is None:
+            ix = (sel[:, None], sel)
+            ang, tol = table.angles[ix], table.tol[ix]
+            mirror = chirality_of(b_all[sel], 2.0 * float(tol.max())) != 0
+        else:
+            ang, tol, mirror = chance
+        pix = cam.pixel_scale_rad
+        from adfusion.starid import kernels  # kernels import this module
+
+        q = kernels.quick_checks(
+            self._ix, np.ascontiguousarray(b_all), np.asarray(sel, dtype=np.int64),
+            np.ascontiguousarray(assigns, dtype=np.int64), np.ascontiguousarray(ang),
+            np.ascontiguousarray(tol), bool(mirror), int(trials),
+            self._match_radius_px() * pix, np.sqrt(2.0) * self.centroid_sigma_px * pix)
+        return quick_tuples(q)
+
+    def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
+                quick: tuple[float, NDArray, float, NDArray, NDArray],
+                b_all: NDArray | None = None) -> Candidate | None:
+        """Full verification of a candidate that passed the quick check: refit on all its
+        matches (and the focal length when it is uncertain), re-associate if the refit
+        moved the attitude noticeably, final fit with covariance, and the p_false of the
+        final match count."""
+        _, R, e_trials, det_i, cat_i = quick
+        if b_all is None:
+            b_all = cam.pixels_to_vectors(xy)
+        radius = self._match_radius_px() * cam.pixel_scale_rad
+        sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+        refit = False
+        if self._fov_uncertain and len(det_i) >= 4:
+            cam = fit_camera(xy[det_i], self.vectors[cat_i], cam, fit_focal=True,
+                             try_mirror=False).camera
+            b_all = cam.pixels_to_vectors(xy)
+            radius = self._match_radius_px() * cam.pixel_scale_rad
+            sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+            refit = True
+        R2 = rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+        if R2 is None:
+            return None
+        # rotation angle between R and R2 from the trace: 1 − cos θ = (3 − tr)/2
+        moved = np.sqrt(max(0.0, 2.0 * (3.0 - float(np.sum(R * R2))) / 2.0))
+        if refit or moved > 0.25 * radius:
+            det_i, cat_i = self._associate_icrs(b_all, R2, radius)
+            if not keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
+                return None
+        try:
+            final = wahba_unit(b_all[det_i], self.vectors[cat_i], sigma)
+        except ValueError:
+            return None
+        k_other = len(det_i) - len(sel)
+        p_false = min(1.0, e_trials * binomial_tail(k_other, len(xy) - len(sel),
+                                                    self._p_hit(int(assign[0]), radius)))
+        return Candidate(
+            q_cam_icrs=final.q_cam_icrs,
+            matches=[(int(d), int(self.ids[c])) for d, c in zip(det_i, cat_i, strict=True)],
+            residuals_rad=final.residuals_rad,
+            p_false=p_false,
+            n_pattern=len(sel),
+            camera=cam,
+            covariance=final.covariance * variance_factor(final),
+            _projector=self._project,
+        )
+
+
+def quick_tuples(q: tuple) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
+    """:func:`kernels.quick_checks`' arrays as one tuple (or None) per assignment."""
+    ok, p, R, e, det, cat, n = q
+    return [(float(p[k]), R[k], float(e[k]), det[k, :n[k]], cat[k, :n[k]]) if ok[k]
+            else None for k in range(len(ok))]
+
+
+
+def variance_factor(w) -> float:
+    """A-posteriori variance factor of a Wahba fit, never below 1: when the residuals say
+    the centroids are worse than ``centroid_sigma_px`` (blur, intensifier noise, lens
+    residuals), the fix's covariance grows accordingly instead of lying to a filter.
+    Each star gives 2 measurements; the attitude takes 3 degrees of freedom."""
+    dof = 2 * len(w.residuals_rad) - 3
+    return max(1.0, w.loss / dof) if dof > 0 else 1.0
+
+
+
+def one_to_one(d: NDArray, j: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """From a nearest-neighbour query (distance ∞ = none within the bound): detections
+    with a match, each target kept by its closest detection (ties to the lower index, so
+    the result does not depend on timing); returns (detection indices, targets)."""
+    det = np.flatnonzero(np.isfinite(d))
+    if len(det) == 0:
+        return det.astype(np.int64), det.astype(np.int64)
+    det = det[np.lexsort((det, d[det]))]
+    _, first = np.unique(j[det], return_index=True)
+    det = np.sort(det[first])
+    return det.astype(np.int64), j[det].astype(np.int64)
+
+
+
+def keeps_pattern(det_i: NDArray, cat_i: NDArray, sel: NDArray, assign: NDArray,
+                   n_det: int) -> bool:
+    """Whether the association kept every pattern star on its assigned catalogue star."""
+    lookup = np.full(n_det, -1, dtype=np.int64)
+    lookup[det_i] = cat_i
+    return bool(np.all(lookup[sel] == assign))
+
+
+
+def rotation_from_pairs(b: NDArray, r: NDArray) -> NDArray | None:
+    """Least-squares rotation (cam ← icrs) from matched directions (lean SVD Wahba)."""
+    u, sv, vt = np.linalg.svd(b.T @ r)
+    if sv[1] < 1e-12 * max(sv[0], 1e-300):
+        return None  # collinear: rotation about the common axis undetermined
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        u[:, 2] = -u[:, 2]
+    return u @ vt
+
+
+
+def distinct_candidates(cands: list[Candidate], tol_rad: float) -> list[Candidate]:
+    """Collapse candidates with the same attitude (e.g. a swapped close pair)."""
+    if len(cands) <= 1:
+        return list(cands)
+    out: list[Candidate] = []
+    for c in sorted(cands, key=lambda c: c.p_false):
+        if all(rot.angle_between(c.q_cam_icrs, o.q_cam_icrs) > tol_rad for o in out):
+            out.append(c)
+    return out
+

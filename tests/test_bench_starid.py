@@ -115,3 +115,23 @@ def test_tetra3rs_conversion() -> None:
 def test_doctests() -> None:
     result = doctest.testmod(bench, optionflags=doctest.ELLIPSIS)
     assert result.failed == 0
+
+
+def test_methods_compares_our_matchers_on_the_same_frames() -> None:
+    """``--methods nstar,bleif``: both of our matchers on the same frames, one table row
+    each, and neither accepts a wrong attitude on clean frames."""
+    p = __import__("argparse").ArgumentParser()
+    bench.add_arguments(p)
+    args = p.parse_args(["--frames", "3", "--conditions", "clean", "--methods", "nstar,bleif",
+                         "--seed", "5", "--no-progress"])
+    cfg = bench.config_from_args(args)
+    assert cfg.solvers == ["ours", "ours_bleif"]
+    doc = bench.run_benchmark(cfg)
+    res = doc["conditions"][0]["results"]
+    assert set(res) == {"ours", "ours_bleif"}
+    for r in res.values():
+        assert r["n_frames"] == 3 and r["error_rate_pct"] == 0.0
+    assert res["ours_bleif"]["availability_pct"] == 100.0
+    assert "ours_bleif" in bench.format_table(doc)
+    with pytest.raises(ValueError, match="unknown method"):
+        bench.config_from_args(p.parse_args(["--methods", "nstar,pyramid"]))

@@ -606,3 +606,90 @@ def test_histogram_quantiles_equal_the_sorted_ones():
                 det._HIST_MAX_LEVELS = saved
             np.testing.assert_array_equal(fast[0], slow[0])
             np.testing.assert_array_equal(fast[1], slow[1])
+
+
+# --- issue 14 item 1 and issue 16 item 11: frames from real sensors -------------------------
+
+
+def test_a_mostly_nan_frame_is_not_ok():
+    """Issue 16 #11: a 99.9 % NaN frame gave thousands of "stars" from the few finite pixels
+    (noise measured as 0) with ok=True."""
+    img, _, _ = _frame(21, 30, (20, 60))
+    img = img.astype(np.float64)
+    img[np.random.default_rng(0).random(img.shape) < 0.999] = np.nan
+    det = detect(img)
+    assert not det.ok and len(det) == 0
+    assert "finite pixels" in det.reason
+
+
+def test_a_float64_frame_keeps_its_precision_at_a_large_offset():
+    """Issue 16 #11: the maps were float32, so an offset of 1e12 (float32 spacing 65536) lost
+    every star; the frame is now measured relative to its median."""
+    img, _, _ = _frame(22, 40, (20, 100))
+    ref = detect(img.astype(np.float64))
+    det = detect(img.astype(np.float64) + 1e12)
+    assert len(ref) >= 38
+    assert len(det) == len(ref)
+    np.testing.assert_allclose(det.xy, ref.xy, atol=1e-6)
+    assert det.background_level == pytest.approx(1e12 + ref.background_level, abs=1e-3)
+
+
+def _clipped(img):
+    """8 bits, the black level at the median: half the sky is 0."""
+    a = np.round(img).astype(np.int64)
+    return np.clip(a - int(np.median(a)), 0, 255).astype(np.uint8)
+
+
+def test_a_clipped_background_gives_the_noise_from_above_the_clip():
+    """Issue 14 #1: with the dark half of the sky clipped at 0 the lower-half spread is 0 and
+    the threshold sat in the noise (thousands of "stars"); the censored estimate measures
+    σ from the quantiles above the clip, and the same stars come out."""
+    img, _, xy = _frame(23, 40, (15, 60), noise=1.5, background=20.0)
+    det = detect(_clipped(img))
+    assert det.ok and det.noise_model == "censored"
+    assert det.noise_sigma == pytest.approx(1.5, rel=0.2)
+    found, _, false = match(det.xy, xy)
+    assert found.mean() >= 0.9 and false <= 2, (found.mean(), false)
+    assert detect(np.round(img).astype(np.uint8)).noise_model == "lower-half"
+
+
+def test_an_absurd_number_of_blobs_is_an_unreliable_threshold():
+    """A threshold in the noise (here sigma=1 on white noise) is reported, not returned as
+    tens of thousands of stars."""
+    img = np.random.default_rng(4).normal(100.0, 3.0, (600, 800)).astype(np.float32)
+    det = detect(img, sigma=1.0, min_area=1, max_sharpness=None, max_elongation=None)
+    assert not det.ok and len(det) == 0
+    assert det.reason.startswith("unreliable threshold")
+    assert detect(img).ok  # the default 5σ finds (almost) nothing, correctly
+
+
+def test_matched_filter_finds_fainter_stars():
+    """The PSF-matched filter lifts stars at a peak of ~2.5σ above the threshold that single
+    pixels miss at the same false-detection level."""
+    img, _, xy = _frame(24, 40, (2.0, 3.0), psf=1.5)
+    plain = match(detect(img.astype(np.float32)).xy, xy)
+    mf_det = detect(img.astype(np.float32), matched_filter=1.5)
+    mf = match(mf_det.xy, xy)
+    assert mf_det.noise_model == "lower-half+matched-filter"
+    assert mf[0].mean() >= plain[0].mean() + 0.3, (plain[0].mean(), mf[0].mean())
+    assert mf[2] <= 3
+    with pytest.raises(ValueError, match="matched_filter"):
+        detect(img, matched_filter=0.0)
+
+
+def test_foreground_clutter_comes_after_the_sky_stars():
+    """Bright, crowded blobs on a noisy foreground (a lit tree) no longer lead the list: the
+    stars on clean sky come first."""
+    img, _, xy = _frame(25, 15, (30, 60), noise=2.0, background=20.0)
+    rng = np.random.default_rng(5)
+    tree = np.zeros_like(img)
+    tree[:, 400:] = rng.gamma(0.3, 40.0, (img.shape[0], img.shape[1] - 400))
+    tree = cv2.GaussianBlur(tree.astype(np.float32), (0, 0), 1.0) * 4.0
+    frame = img + tree
+    sky = xy[:, 0] < 390
+    plain = detect(frame.astype(np.float32), clutter_noise_factor=None)
+    det = detect(frame.astype(np.float32))
+    n_sky = int(sky.sum())
+    lead = det.xy[:n_sky]
+    assert np.mean(lead[:, 0] < 395) >= 0.9
+    assert np.mean(plain.xy[:n_sky, 0] < 395) < 0.9  # without it the tree leads

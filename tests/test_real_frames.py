@@ -4,7 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from real_frames import OBS_EPOCH, grid_errors_deg, load_frames, projected_stars
+from real_frames import (
+    OBS_EPOCH,
+    clipped_8bit,
+    corr_frames,
+    corr_offsets_px,
+    grid_errors_deg,
+    load_frames,
+    projected_stars,
+)
 from scipy.spatial import cKDTree
 
 from adfusion import starid
@@ -112,3 +120,99 @@ def test_cli_solve_on_a_real_frame(frames, tmp_path, capsys):
 
     img = cv2.imread(str(out))
     assert img is not None and img.shape == (768, 1024, 3)
+
+
+# --- issue 14: both real sets from the image and a FOV range, nothing else known -------------
+
+# frames on which the acceptance is still short (see the issue-14 report): kept visible
+# here, strict, so that a fix shows up as an unexpected pass
+_SHORT = {
+    "tree": "lit tree: identified from the sky's 12 stars; a.net's stars in the tree 4.5 px p95",
+    "roof": "stars matched on the left half only; the right edge's a.net stars 4.4 px p95",
+    "virgo": "two a.net pairs at the left edge 25 px from ours: a.net's own pairs fit no "
+             "lens model better than 0.8 px median; p95 18 px",
+}
+
+
+@pytest.fixture(scope="module")
+def hip65():
+    return starid.Catalog.hipparcos(mag_limit=6.5, epoch=2020.0)
+
+
+def _solve(frame, cat, fov_range, image=None):
+    from adfusion.starid.detect import read_image
+
+    img = read_image(frame.path) if image is None else image
+    cam = starid.Camera.pinhole(frame.width, frame.height, frame.fov_x_deg)
+    sol = starid.Solver(cat, cam, fov_range_deg=fov_range).solve(starid.detect(img, cam))
+    off = corr_offsets_px(frame, sol.camera, sol.q_cam_icrs) if sol.ok else None
+    return sol, off
+
+
+@pytest.mark.opencv
+def test_both_real_sets_from_a_fov_range_of_25_percent(shared_dir, hip65):
+    """Every frame of both sets from the image file and FOV ±25 %: identified, never wrong
+    (astrometry.net's matched stars land within 1 px median), and within 1 px median and
+    3 px p95 with the fitted camera — except the frames listed in _SHORT, which must still
+    never be wrong."""
+    rows, short_now = [], []
+    for f in corr_frames(shared_dir):
+        sol, off = _solve(f, hip65, (0.75 * f.fov_x_deg, 1.25 * f.fov_x_deg))
+        if not sol.ok:
+            rows.append((f.name, None, None))
+            short_now.append(f.name)
+            continue
+        med, p95 = float(np.median(off)), float(np.percentile(off, 95))
+        rows.append((f.name, med, p95))
+        assert med <= 1.0, (f.name, med, p95)  # never wrong, nor loose in the middle
+        assert sol.camera.fov_x_deg == pytest.approx(f.fov_x_deg, rel=0.02)
+        if p95 > 3.0:
+            short_now.append(f.name)
+    print("\n".join(f"{n:40s} {m if m is None else f'{m:.2f}'} {p if p is None else f'{p:.2f}'}"
+                    for n, m, p in rows))
+    assert set(short_now) <= set(_SHORT), rows
+    assert set(short_now) == set(_SHORT), f"now good: {set(_SHORT) - set(short_now)}"
+
+
+@pytest.mark.opencv
+def test_real_frames_from_a_fov_range_of_5_to_40_degrees(shared_dir, hip65):
+    """The 8 frames of real-images with nothing known but 5°–40° (one index for the
+    camera size; the 13 cedar frames need five more, ~1 min each to build: they run in
+    benchmarks/real_frames.py --fov 5:40)."""
+    for f in corr_frames(shared_dir):
+        if f.set != "real-images":
+            continue
+        sol, off = _solve(f, hip65, (5.0, 40.0))
+        assert sol.ok, (f.name, sol.reason)
+        assert np.median(off) <= 1.0 and np.percentile(off, 95) <= 3.0, (f.name, off)
+
+
+@pytest.mark.opencv
+def test_clipped_8bit_frames_identify_with_default_settings(shared_dir, hip65):
+    """The same frames at 8 bits with the background clipped at 0 (black level at the
+    median): the noise is measured above the clip ("censored"), not from the empty dark
+    half, and every frame identified before still identifies, never wrong."""
+    from adfusion.starid.detect import read_image
+
+    for f in corr_frames(shared_dir):
+        img = clipped_8bit(read_image(f.path))
+        assert np.mean(img == 0) > 0.4
+        det = starid.detect(img)
+        assert det.ok and det.noise_model == "censored", (f.name, det)
+        assert len(det) < 1000, (f.name, len(det))
+        sol, off = _solve(f, hip65, (0.75 * f.fov_x_deg, 1.25 * f.fov_x_deg), img)
+        assert sol.ok, (f.name, sol.reason)
+        assert np.median(off) <= 1.0, (f.name, np.median(off))
+
+
+@pytest.mark.opencv
+def test_cli_solve_with_a_fov_range(shared_dir, capsys):
+    import json
+
+    from adfusion.app.cli import main
+
+    f = next(f for f in corr_frames(shared_dir) if f.name == "orion2")
+    assert main(["solve", str(f.path), "--fov", "8:13", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["ok"] and res["fov_x_deg"] == pytest.approx(f.fov_x_deg, rel=0.01)
+    assert main(["solve", str(f.path), "--fov", "13:8"]) != 0

@@ -5,8 +5,8 @@ Each sub-command lives in its own function; heavy imports happen inside them so 
 
 Example:
     >>> from adfusion.app.cli import build_parser
-    >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:4]
-    ['bench', 'catalog', 'demo', 'detect']
+    >>> sorted(build_parser()._subparsers._group_actions[0].choices)[:5]
+    ['acs', 'bench', 'cache', 'calibrate', 'catalog']
 """
 
 from __future__ import annotations
@@ -158,28 +158,72 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true", help="print JSON instead of a table")
     d.set_defaults(func=cmd_detect)
 
-    s = sub.add_parser("solve", help="identify the stars of an image: attitude, lost in space")
-    s.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
+    s = sub.add_parser("solve", help="identify the stars of images: attitude, lost in space",
+                       description="Identify the stars of one image, many, or every image "
+                       "of a folder (loaded once, solved in turn with a progress bar).")
+    s.add_argument("images", nargs="*", metavar="IMAGE",
+                   help="image files (TIFF, PNG, JPEG) or folders of them")
     s.add_argument("--example", action="store_true",
                    help="render and solve the built-in synthetic example frame")
-    s.add_argument("--fov", type=positive_float,
-                   help="horizontal field of view estimate, degrees")
+    s.add_argument("--fov", metavar="DEG|LO:HI",
+                   help="horizontal field of view, degrees: an estimate (12, with "
+                        "--fov-error) or a range LO:HI (8:16; the camera is then fitted)")
     s.add_argument("--fov-error", type=non_negative_float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
+    s.add_argument("--camera", metavar="YAML",
+                   help="OpenCV camera file (e.g. from `adfusion calibrate`) instead of --fov")
     s.add_argument("--mag-limit", type=magnitude_limit, default=6.5,
                    help="catalogue limit, estimated Johnson V (default 6.5)")
+    s.add_argument("--stars-per-fov", type=int, default=None,
+                   help="deep catalogues: keep the brightest N stars per field-sized patch "
+                        "of sky (default: 30, applied when the catalogue holds more)")
     s.add_argument("--epoch", type=finite_float, default=None,
                    help="observation epoch, Julian year (default: now)")
-    s.add_argument("--method", choices=["nstar", "triad"], default="nstar")
+    s.add_argument("--method", choices=["nstar", "triad", "bleif"], default="nstar")
     s.add_argument("--sigma", type=positive_float, default=5.0,
                    help="detection threshold, sigmas")
     s.add_argument("--overlay", metavar="PNG", type=image_path,
-                   help="write an overlay image for checking (.png, .jpg, .tif, ...)")
+                   help="write an overlay image (one image only; .png, .jpg, .tif, ...)")
+    s.add_argument("-o", "--out-dir", metavar="DIR",
+                   help="write <image>.json per image here (and .wcs / .corr if asked)")
+    s.add_argument("--wcs", action="store_true",
+                   help="write <image>.wcs: FITS TAN-SIP header (into --out-dir, default .)")
+    s.add_argument("--corr", action="store_true",
+                   help="write <image>.corr: FITS table of the matched stars")
     s.add_argument("--json", action="store_true", help="print JSON instead of text")
     s.set_defaults(func=cmd_solve)
 
-    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo)")
-    sm.add_argument("scenario", choices=["oedipus", "leo"])
+    ca = sub.add_parser("cache", help="the on-disk cache of catalogues and pattern indexes")
+    ca.add_argument("action", choices=["info", "clear"])
+    ca.add_argument("--kind", help="clear only entries of this kind (e.g. pattern-index)")
+    ca.add_argument("--json", action="store_true", help="print JSON instead of text")
+    ca.set_defaults(func=cmd_cache)
+
+    cb = sub.add_parser("calibrate", help="fit a camera (focal length, principal point, "
+                        "distortion) jointly over many frames → OpenCV camera YAML")
+    cb.add_argument("images", nargs="+", metavar="FRAME",
+                    help="image files or folders, one camera, same size")
+    cb.add_argument("-o", "--output", required=True, metavar="YAML",
+                    help="camera file to write (accepted by --camera)")
+    cb.add_argument("--fov", metavar="DEG|LO:HI",
+                    help="horizontal field of view, degrees: an estimate or a range LO:HI")
+    cb.add_argument("--fov-error", type=float, default=None,
+                    help="± uncertainty of --fov, degrees (default 5 %% of the FOV)")
+    cb.add_argument("--camera", metavar="YAML", help="starting camera instead of --fov")
+    cb.add_argument("--mag-limit", type=float, default=7.5,
+                    help="catalogue limit for the fit's stars (default 7.5)")
+    cb.add_argument("--epoch", type=float, default=None,
+                    help="observation epoch, Julian year (default: now)")
+    cb.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
+    cb.add_argument("--terms", default="focal,principal,k1,k2,tangential",
+                    help="what to fit, comma-separated from focal, principal, aspect, k1, k2, "
+                         "tangential (default: all but aspect), or 'auto' (chosen by BIC)")
+    cb.add_argument("--json", action="store_true", help="print JSON instead of text")
+    cb.set_defaults(func=cmd_calibrate)
+
+    sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo, "
+                        "tubsat: Bleif's night pass to Berlin)")
+    sm.add_argument("scenario", choices=["oedipus", "leo", "tubsat"])
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
     sm.add_argument("--duration", type=positive_float, default=60.0,
                     help="seconds (default 60)")
@@ -236,6 +280,20 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
         bs.set_defaults(func=lambda a: _run_bench(bench_starid, a))
         bench_sweep.add_arguments(sw)
         sw.set_defaults(func=bench_sweep.cli)
+
+    a = sub.add_parser("acs", help="closed-loop attitude control on Basilisk, camera in the "
+                       "loop (needs the bsk extra)")
+    a.add_argument("scenario", help="leo, slew, outage or misaligned")
+    a.add_argument("-o", "--output", required=True, help="MCAP log; the report is written "
+                   "beside it (.report.md, .report.json, .png)")
+    a.add_argument("--seed", type=int, default=0, help="seed of every noise source (default 0)")
+    a.add_argument("--duration", type=float, default=None, help="seconds (default: the "
+                   "scenario's, 600)")
+    a.add_argument("--images", choices=("preview", "all"), default="preview",
+                   help="log every frame's image, or one in 40 with every frame's centroids "
+                   "(default preview)")
+    a.add_argument("--json", action="store_true", help="print the report as JSON")
+    a.set_defaults(func=cmd_acs)
 
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -321,76 +379,348 @@ def cmd_detect(args: argparse.Namespace) -> int:
     return 0
 
 
+def parse_fov(text: str) -> tuple[float, float]:
+    """``--fov``: one value (degrees) or a range ``LO:HI``; (lo, hi) with lo = hi for one.
+
+    >>> parse_fov("12"), parse_fov("8:16")
+    ((12.0, 12.0), (8.0, 16.0))
+    """
+    parts = str(text).split(":")
+    try:
+        vals = [float(p) for p in parts]
+    except ValueError:
+        raise UsageError(f"--fov must be degrees (12) or a range LO:HI (8:16), got {text!r}"
+                         ) from None
+    if len(vals) not in (1, 2) or not all(math.isfinite(v) and 0 < v < 179 for v in vals):
+        raise UsageError(f"--fov must be degrees in (0, 179) or LO:HI, got {text!r}")
+    lo, hi = (vals[0], vals[0]) if len(vals) == 1 else (vals[0], vals[1])
+    if lo > hi:
+        raise UsageError(f"--fov LO:HI needs LO ≤ HI, got {text!r}")
+    return lo, hi
+
+
+def _fov_nominal(fov: tuple[float, float]) -> float:
+    """The camera model's FOV for ``--fov``: the value, or a range's geometric middle."""
+    return math.sqrt(fov[0] * fov[1])
+
+
+_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm"}
+
+
+def _image_paths(items: Sequence[str]) -> list:
+    """The image files named, folders expanded to their images (sorted)."""
+    from pathlib import Path
+
+    out = []
+    for item in items:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
+            if not found:
+                raise ValueError(f"no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) in {p}")
+            out.extend(found)
+        elif not p.exists():
+            raise UsageError(f"{p}: no such file")
+        else:
+            out.append(p)
+    return out
+
+
+class _Solvers:
+    """One catalogue, and one solver per image size, for every image of a run."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        from adfusion import starid
+
+        self.args = args
+        self.epoch = args.epoch if args.epoch is not None else _julian_year_now()
+        self.catalog = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=self.epoch)
+        self.camera_file = None
+        self.fov = parse_fov(args.fov) if args.fov is not None else None
+        if getattr(args, "camera", None):
+            from adfusion.starid.camera_file import read_camera_yaml
+
+            self.camera_file = read_camera_yaml(args.camera)
+        elif args.fov is None:
+            raise UsageError("--fov (horizontal field of view estimate, degrees) or --camera "
+                             "(a camera YAML) is required")
+        self._by_size: dict = {}
+
+    def camera_for(self, width: int, height: int):
+        from adfusion import starid
+
+        if self.camera_file is not None:
+            c = self.camera_file
+            if (c.width, c.height) != (width, height):
+                raise ValueError(f"the camera file is for {c.width}×{c.height} images, this "
+                                 f"one is {width}×{height}")
+            return c
+        return starid.Camera.pinhole(width, height, _fov_nominal(self.fov))
+
+    def solver_for(self, camera):
+        from adfusion import starid
+        from adfusion.starid.coverage import DEFAULT_STARS_PER_FOV, catalog_for_camera
+
+        key = camera.key()
+        if key not in self._by_size:
+            a = self.args
+            spf = a.stars_per_fov if a.stars_per_fov is not None else DEFAULT_STARS_PER_FOV
+            ranged = self.camera_file is None and self.fov[0] != self.fov[1]
+            narrowest = camera  # a range thins for its narrowest field: depth for all
+            if ranged and self.fov[0] < camera.fov_x_deg:
+                narrowest = starid.Camera.pinhole(camera.width, camera.height, self.fov[0])
+            cat = catalog_for_camera(self.catalog, narrowest, spf)
+            if ranged:
+                if a.fov_error:
+                    raise ValueError("give --fov LO:HI or --fov-error, not both")
+                kw = {"fov_range_deg": self.fov}
+            else:
+                kw = {"fov_error_deg": a.fov_error}
+            solver = starid.Solver(cat, camera, method=a.method, **kw)
+            if a.method == "nstar":
+                solver.warm_up()  # the reported time is the solve's, not the kernels' loading
+            self._by_size[key] = solver
+        return self._by_size[key]
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
     from adfusion import starid
     from adfusion.starid.detect import read_image
 
-    if args.example == bool(args.image):
-        raise UsageError("give an IMAGE or --example (one of them)")
-    if args.image:
-        _input_file(args.image, "image")
+    if args.example == bool(args.images):
+        raise UsageError("give IMAGE(s) or --example (one of them)")
+    paths = [] if args.example else _image_paths(args.images)
+    if args.overlay and len(paths) > 1:
+        raise UsageError("--overlay takes one image (use --out-dir for a batch)")
     if args.overlay:
         _output_file(args.overlay, "--overlay")
-    epoch = args.epoch if args.epoch is not None else _julian_year_now()
+    out_dir = None
+    if args.out_dir or args.wcs or args.corr:
+        from pathlib import Path
+
+        out_dir = Path(args.out_dir or ".")
+        out_dir.mkdir(parents=True, exist_ok=True)
     truth_q = None
     if args.example:
         from adfusion.app import examples
 
         ex = examples.example_frame()
-        image, camera, truth_q = ex.image, ex.camera, ex.q_cam_icrs
         print(f"example: {ex.description}", file=sys.stderr)
+        args.camera, args.fov = None, str(ex.camera.fov_x_deg)
+        frames = [("example", lambda: ex.image)]
+        truth_q = ex.q_cam_icrs
     else:
-        if args.fov is None:
-            raise UsageError("--fov (horizontal field of view estimate, degrees) is required")
-        image = read_image(args.image)
-        h, w = image.shape[:2]
-        camera = starid.Camera.pinhole(w, h, args.fov)
-    t0 = time.perf_counter()
-    det = starid.detect(image, camera, sigma=args.sigma)
-    t_detect = time.perf_counter() - t0
-    cat = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
-    solver = starid.Solver(cat, camera, fov_error_deg=args.fov_error, method=args.method)
-    if args.method == "nstar":
-        solver.warm_up()  # the reported time is the solve's, not the compiled code's loading
-    sol = solver.solve(det)
-    out = solution_record(sol, cat)
-    out["detections"] = len(det)
-    out["detect_ms"] = round(t_detect * 1e3, 2)
-    if truth_q is not None and sol.ok:
-        err = np.degrees(starid.rotations.angle_between(sol.q_cam_icrs, truth_q)) * 3600
-        out["error_vs_truth_arcsec"] = round(float(err), 2)
-    if args.overlay:
-        import cv2
+        frames = [(p.name, lambda p=p: read_image(p)) for p in paths]
+    solvers = _Solvers(args)
+    records = []
+    bar = None
+    if len(frames) > 1:
+        from tqdm import tqdm
 
-        from adfusion.app.overlay import draw_solution
+        bar = tqdm(total=len(frames), unit="image", file=sys.stderr, disable=None)
+    for name, load in frames:
+        try:
+            image = load()
+            camera = ex.camera if args.example else solvers.camera_for(image.shape[1],
+                                                                       image.shape[0])
+        except (ValueError, FileNotFoundError) as e:  # this image's problem: say so, go on
+            if len(frames) == 1:
+                raise
+            rec = {"image": name, "ok": False, "reason": str(e)}
+        else:
+            solver = solvers.solver_for(camera)
+            t0 = time.perf_counter()
+            det = starid.detect(image, camera, sigma=args.sigma)
+            t_detect = time.perf_counter() - t0
+            sol = solver.solve(det)
+            rec = {"image": name, **solution_record(sol, solver.catalog, det.xy)}
+            rec["detections"] = len(det)
+            rec["detect_ms"] = round(t_detect * 1e3, 2)
+            rec["epoch"] = solvers.epoch
+            if truth_q is not None and sol.ok:
+                err = np.degrees(starid.rotations.angle_between(sol.q_cam_icrs, truth_q)) * 3600
+                rec["error_vs_truth_arcsec"] = round(float(err), 2)
+            if out_dir is not None:
+                _write_products(out_dir, name, rec, sol, args, solvers.epoch)
+            if args.overlay:
+                import cv2
 
-        if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
-            raise ValueError(f"could not write the overlay to {args.overlay}")
+                from adfusion.app.overlay import draw_solution
+
+                if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
+                    raise ValueError(f"could not write the overlay to {args.overlay}")
+        records.append(rec)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix_str(f"{sum(r['ok'] for r in records)} solved")
+    if bar is not None:
+        bar.close()
+    all_ok = all(r["ok"] for r in records)
+    if len(records) > 1:
+        from adfusion.app.products import summary_table
+
+        if args.json:
+            print(json.dumps({"images": records, "n": len(records),
+                              "solved": sum(r["ok"] for r in records)}, indent=2))
+        else:
+            print(summary_table(records))
+        return 0 if all_ok else 1
+    out = records[0]
     if args.json:
         print(json.dumps(out, indent=2))
-        return 0 if sol.ok else 1
-    print(f"{len(det)} stars detected in {out['detect_ms']} ms; identification "
-          f"{'ok' if sol.ok else 'NOT ok'} in {out['time_ms']} ms ({out['path'] or '-'})")
-    if not sol.ok:
-        print(f"reason: {sol.reason}")
-        return 1
+        return 0 if out["ok"] else 1
+    _print_solution(out)
+    return 0 if out["ok"] else 1
+
+
+def _write_products(out_dir, name: str, rec: dict, sol, args: argparse.Namespace,
+                    epoch: float) -> None:
+    from pathlib import Path
+
+    from adfusion.app.products import write_corr, write_wcs
+
+    stem = Path(name).stem
+    (out_dir / f"{stem}.json").write_text(json.dumps(rec, indent=2) + "\n")
+    if sol.ok and args.wcs:
+        write_wcs(out_dir / f"{stem}.wcs", sol, epoch)
+    if sol.ok and args.corr:
+        write_corr(out_dir / f"{stem}.corr", sol, rec["matches"])
+
+
+def _print_solution(out: dict) -> None:
+    print(f"{out.get('detections', 0)} stars detected in {out.get('detect_ms', 0)} ms; "
+          f"identification {'ok' if out['ok'] else 'NOT ok'} in {out.get('time_ms', 0)} ms "
+          f"({out.get('path') or '-'})")
+    if not out["ok"]:
+        print(f"reason: {out['reason']}")
+        return
     print(f"boresight RA {out['ra_deg']:.5f}°  Dec {out['dec_deg']:+.5f}°  roll "
           f"{out['roll_deg']:.4f}°   (1σ {out['sigma_arcsec'][0]:.1f}″ / "
           f"{out['sigma_arcsec'][1]:.1f}″ / {out['sigma_arcsec'][2]:.1f}″ about x/y/z)")
-    print(f"FOV {out['fov_x_deg']:.4f}°, {len(sol.matches)} stars matched, RMS residual "
-          f"{out['rms_residual_arcsec']:.1f}″, false-match probability {sol.p_false:.1e}")
+    print(f"FOV {out['fov_x_deg']:.4f}°, {len(out['matches'])} stars matched, RMS residual "
+          f"{out['rms_residual_arcsec']:.1f}″, false-match probability {out['p_false']:.1e}")
     if "error_vs_truth_arcsec" in out:
         print(f"error against the rendered truth: {out['error_vs_truth_arcsec']}″")
-    print(f"{'det':>4} {'id':>8} {'residual″':>10}")
+    print(f"{'det':>4} {'x':>8} {'y':>8} {'id':>8} {'RA°':>10} {'Dec°':>10} {'mag':>6} "
+          f"{'residual″':>10}")
     for m in out["matches"]:
-        print(f"{m['detection']:>4} {m['id']:>8} {m['residual_arcsec']:>10.2f}")
+        print(f"{m['detection']:>4} {m['x']:>8.2f} {m['y']:>8.2f} {m['id']:>8} "
+              f"{m['ra_deg']:>10.5f} {m['dec_deg']:>+10.5f} {m['mag']:>6.2f} "
+              f"{m['residual_arcsec']:>10.2f}")
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    from adfusion.starid import cache
+
+    root = cache.cache_dir()
+    if args.action == "clear":
+        n, size = cache.cache_clear(args.kind)
+        msg = {"removed": n, "bytes": size, "dir": str(root) if root else None}
+        print(json.dumps(msg) if args.json else
+              f"removed {n} cache entr{'y' if n == 1 else 'ies'} ({size / 1e6:.1f} MB)"
+              f" from {root}")
+        return 0
+    entries = cache.cache_info()
+    total = sum(e.size for e in entries)
+    limit = cache.cache_limit_bytes()
+    if args.json:
+        print(json.dumps({"dir": str(root) if root else None, "limit_bytes": limit,
+                          "total_bytes": total,
+                          "entries": [{"file": e.path.name, "kind": e.kind, "bytes": e.size,
+                                       "last_used": e.last_used} for e in entries]}, indent=2))
+        return 0
+    if root is None:
+        print("caching is off (ADFUSION_CACHE_DIR=off)")
+        return 0
+    print(f"{root}: {len(entries)} entries, {total / 1e6:.1f} MB of {limit / 1e6:.0f} MB "
+          f"(ADFUSION_CACHE_MAX_MB); least recently used go first")
+    import datetime as dt
+
+    for e in entries:
+        when = dt.datetime.fromtimestamp(e.last_used).strftime("%Y-%m-%d %H:%M")
+        print(f"  {e.kind:16s} {e.size / 1e6:9.1f} MB  used {when}  {e.path.name}")
     return 0
 
 
-def solution_record(sol, cat=None) -> dict:
-    """JSON-ready summary of a :class:`starid.Solution` (the CLI's and the logs' format)."""
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from adfusion import starid
+    from adfusion.starid.camera_file import read_camera_yaml, write_camera_yaml
+    from adfusion.starid.detect import read_image
+    from adfusion.starid.joint_calibration import calibrate_frames
+
+    paths = _image_paths(args.images)
+    if args.camera:
+        camera = read_camera_yaml(args.camera)
+    elif args.fov is None:
+        raise UsageError("--fov (horizontal field of view estimate, degrees) or --camera "
+                         "(a starting camera YAML) is required")
+    fov = parse_fov(args.fov) if args.fov is not None else None
+    terms = "auto" if args.terms.strip() == "auto" else tuple(
+        t.strip() for t in args.terms.split(",") if t.strip())
+    epoch = args.epoch if args.epoch is not None else _julian_year_now()
+    dets: list = []
+    shape: tuple = ()
+    from tqdm import tqdm
+
+    for p in tqdm(paths, desc="detect", unit="image", file=sys.stderr, disable=None):
+        img = read_image(p)
+        if not args.camera:
+            if dets and img.shape[:2] != shape:
+                raise ValueError(f"{p.name} is {img.shape[1]}×{img.shape[0]}, the first frame "
+                                 f"{shape[1]}×{shape[0]}: one camera, one image size")
+            shape = img.shape[:2]
+            camera = starid.Camera.pinhole(shape[1], shape[0], _fov_nominal(fov))
+        dets.append(starid.detect(img, camera, sigma=args.sigma))
+    if fov is not None and fov[0] != fov[1] and not args.camera:
+        fov_kw: dict = {"fov_range_deg": fov}
+    else:
+        fov_kw = {"fov_error_deg": args.fov_error if args.fov_error is not None
+                  else 0.05 * camera.fov_x_deg}
+    deep = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
+    ident = starid.Catalog.hipparcos(mag_limit=min(args.mag_limit, 6.5), epoch=epoch)
+    t0 = time.perf_counter()
+    res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms, **fov_kw)
+    cam = res.camera
+    write_camera_yaml(cam, args.output,
+                      comment=f"adfusion calibrate: {res.n_frames} frames, "
+                              f"{sum(res.stars_per_frame)} stars, terms {','.join(res.fit.terms)}",
+                      sigma_px=res.sigma_px, rms_px=res.fit.rms_px, frames=res.n_frames)
+    per_frame = [{"image": paths[k].name, "stars": n,
+                  "rms_px": round(float(np.sqrt(np.mean(np.sum(r * r, axis=1)))), 3)}
+                 for k, n, r in zip(res.frames_used, res.stars_per_frame, res.fit.residuals_px,
+                                    strict=True)]
+    out = {"output": str(args.output), "frames_used": res.n_frames,
+           "frames_failed": {paths[k].name: r for k, r in res.frames_failed.items()},
+           "terms": list(res.fit.terms), "sigma_px": round(res.sigma_px, 4),
+           "rms_px": round(res.fit.rms_px, 4), "fov_x_deg": cam.fov_x_deg,
+           "K": cam.K.tolist(), "D": cam.D.tolist(), "frames": per_frame,
+           "time_s": round(time.perf_counter() - t0, 2)}
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0 if not res.frames_failed else 1
+    print(f"camera from {res.n_frames} frames, {sum(res.stars_per_frame)} stars "
+          f"({', '.join(res.fit.terms)}): RMS {res.fit.rms_px:.3f} px, σ {res.sigma_px:.3f} px "
+          f"→ {args.output}")
+    print(f"fx {cam.K[0, 0]:.2f}  fy {cam.K[1, 1]:.2f}  cx {cam.K[0, 2]:.2f}  "
+          f"cy {cam.K[1, 2]:.2f}  (FOV {cam.fov_x_deg:.4f}°)")
+    print("D (k1 k2 p1 p2 k3): " + " ".join(f"{d:+.5f}" for d in cam.D))
+    for f in per_frame:
+        print(f"  {f['image']:40s} {f['stars']:4d} stars  RMS {f['rms_px']:.3f} px")
+    for name, reason in out["frames_failed"].items():
+        print(f"  {name:40s} left out: {reason}")
+    return 0 if not res.frames_failed else 1
+
+
+def solution_record(sol, cat=None, xy=None) -> dict:
+    """JSON-ready summary of a :class:`starid.Solution` (the CLI's and the logs' format).
+
+    With the catalogue and the detections' pixels, each match carries its pixel, the
+    catalogue star's RA/Dec and magnitude, and the predicted pixel
+    (:func:`adfusion.app.products.match_rows`)."""
     import numpy as np
 
     rec: dict = {
@@ -407,11 +737,16 @@ def solution_record(sol, cat=None) -> dict:
                           for v in np.diag(sol.covariance)],
             covariance_rad2=np.asarray(sol.covariance).tolist(),
             fov_x_deg=sol.camera.fov_x_deg,
+            camera=sol.camera.to_dict(),
             rms_residual_arcsec=sol.rms_residual_arcsec,
             matches=[{"detection": d, "id": i,
                       "residual_arcsec": float(np.degrees(r) * 3600)}
                      for (d, i), r in zip(sol.matches, sol.residuals_rad, strict=True)],
         )
+        if cat is not None and xy is not None:
+            from adfusion.app.products import match_rows
+
+            rec["matches"] = match_rows(sol, cat, xy)
     else:
         rec["candidates"] = [
             {"ra_dec_roll_deg": list(c.radec_roll_deg), "p_false": c.p_false,
@@ -437,6 +772,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from adfusion.app.replay import simulate
 
     _output_file(args.output)
+    if args.scenario == "tubsat":  # its own timeline: contact at 23:06:20 to the target
+        from adfusion.app.tubsat_log import simulate_tubsat
+
+        res = simulate_tubsat(args.output, seed=args.seed)
+        print(f"tubsat: {'ok' if res.ok else 'not ok: ' + res.reason}; target at "
+              f"{res.ref_time:%H:%M:%S} UTC, boresight {res.pointing_error_deg:.2f}° off "
+              f"(1σ budget {res.predicted_sigma_deg:.2f}°) → {args.output}")
+        return 0 if res.ok else 1
     t0 = time.perf_counter()
     n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render),
                  args.output, progress=sys.stderr.isatty())
@@ -510,6 +853,23 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 def _run_bench(module, args: argparse.Namespace) -> int:
     module.run(args)
+    return 0
+
+
+def cmd_acs(args: argparse.Namespace) -> int:
+    try:
+        from adfusion.basilisk.acs import run_acs
+    except ModuleNotFoundError as e:
+        if (e.name or "").split(".")[0] != "Basilisk":
+            raise
+        raise ValueError("Basilisk is not installed: pip install 'adfusion[bsk]'") from None
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise UsageError("--duration must be a finite number > 0")
+    t0 = time.perf_counter()
+    rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
+                  images=args.images)
+    print(json.dumps(rep.as_dict(), indent=2) if args.json else rep.table())
+    print(f"→ {args.output} and its report ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return 0
 
 

@@ -703,25 +703,28 @@ class Adapter:
 SOLVERS: dict[tuple[Any, ...], Any] = {}
 
 
-def solver_for(mag_limit: float, sigma_px: float, camera, epoch: float = 2025.0):
+def solver_for(mag_limit: float, sigma_px: float, camera, epoch: float = 2025.0,
+               method: str = "nstar"):
     """Our :class:`starid.solver.Solver` for a visible limit, centroid σ and camera
     (memoised per process: the tracking and lost-in-space runs share one index).
 
-    ``centroid_sigma_px`` is ``max(0.5, σ)``, as a user would configure a camera.
+    ``centroid_sigma_px`` is ``max(0.5, σ)``, as a user would configure a camera;
+    ``method`` is the solver's matcher (``nstar``, ``triad``, ``bleif``).
     """
     from adfusion.starid.solver import Solver
 
     sigma = max(0.5, float(sigma_px))
     key = (float(mag_limit), sigma, camera.width, camera.height, round(camera.fov_x_deg, 9),
-           float(epoch))
+           float(epoch), method)
     if key not in SOLVERS:
         SOLVERS[key] = Solver(load_catalog(float(mag_limit), epoch), camera,
-                               centroid_sigma_px=sigma)
+                               centroid_sigma_px=sigma, method=method)
     return SOLVERS[key]
 
 
 class _Ours(Adapter):
     name = "ours"
+    method = "nstar"
 
     def __init__(self, cfg: BenchConfig, camera=None) -> None:
         self.cfg = cfg
@@ -733,7 +736,8 @@ class _Ours(Adapter):
         from adfusion.starid.index import PatternIndex
 
         limit = float(cond.mag_limit if cond.mag_limit is not None else self.cfg.mag_limit)
-        s = solver_for(limit, float(cond.sigma_px or 0.0), camera, self.cfg.epoch)
+        s = solver_for(limit, float(cond.sigma_px or 0.0), camera, self.cfg.epoch,
+                       self.method)
         base = getattr(self.cfg, "fov_deg", None)
         fov = "" if base is not None and abs(camera.fov_x_deg - base) < 1e-6 else \
             f", FOV {camera.fov_x_deg:.4g}°"
@@ -812,6 +816,23 @@ class _OursTracking(_Ours):
 
     def params(self) -> dict[str, Any]:
         return {**self._params, "prior_sigma_deg": self.sigma_deg}
+
+
+class _OursMethod(_Ours):
+    """Ours with another matcher (``Solver(method=...)``): ``ours_triad`` (Yee's triads),
+    ``ours_bleif`` (Bleif's MusterPr reference-star patterns) — the same verification."""
+
+    def __init__(self, cfg, camera=None, method: str = "triad") -> None:
+        super().__init__(cfg, camera)
+        self.method = method
+        self.name = f"ours_{method}"
+
+    def params(self) -> dict[str, Any]:
+        return {**self._params, "method": self.method}
+
+
+# ``--methods`` names → solver names
+METHOD_SOLVERS = {"nstar": "ours", "triad": "ours_triad", "bleif": "ours_bleif"}
 
 
 class _Tetra3rs(Adapter):
@@ -1117,13 +1138,15 @@ def make_adapters(cfg: BenchConfig, camera, cache: Path) -> tuple[list[Adapter],
             elif name == "ours_tracking":
                 adapters.append(_OursTracking(cfg, camera,
                                               getattr(cfg, "prior_sigma_deg", 0.1)))
+            elif name in ("ours_triad", "ours_bleif"):
+                adapters.append(_OursMethod(cfg, camera, name.removeprefix("ours_")))
             elif name == "tetra3rs":
                 adapters.append(_Tetra3rs(cfg, camera, cache))
             elif name == "cedar":
                 adapters.append(_Cedar(cfg, camera, cache))
             else:
                 raise ValueError(f"unknown solver {name!r} (choose from "
-                                 f"{(*SOLVER_NAMES, 'ours_tracking')})")
+                                 f"{(*SOLVER_NAMES, 'ours_tracking', 'ours_triad', 'ours_bleif')})")
         except ImportError as e:
             skipped[name] = {"status": "skipped", "reason": f"not importable: {e}"}
         except (RuntimeError, OSError, subprocess.SubprocessError, json.JSONDecodeError) as e:
@@ -1270,14 +1293,14 @@ def format_table(doc: dict[str, Any]) -> str:
                             f"{'' if v['passed'] else ' FAILED'}"
                     for k, v in doc["conversion_check"].items())
     lines.append(f"conversion check (noise-free frames, max attitude error): {chk}")
-    head = (f"{'condition':<14} {'solver':<9} {'avail %':>8} {'err %':>6} {'err ≤95%':>8} "
+    head = (f"{'condition':<14} {'solver':<13} {'avail %':>8} {'err %':>6} {'err ≤95%':>8} "
             f"{'t med ms':>9} {'t p95':>8} {'t max':>8} {'ours/peer':>9}")
     lines += ["", head, "-" * len(head)]
     for c in doc["conditions"]:
         for k, (name, r) in enumerate(c["results"].items()):
             ratio = c["time_ratio_ours_over_peer"].get(name)
             lines.append(
-                f"{c['name'] if k == 0 else '':<14} {name:<9} "
+                f"{c['name'] if k == 0 else '':<14} {name:<13} "
                 f"{_f(r['availability_pct'], '.1f'):>8} {_f(r['error_rate_pct'], '.1f'):>6} "
                 f"{_f(r['error_rate_upper95_pct'], '.2f'):>8} "
                 f"{_f(r['time_ms']['median'], '.2f'):>9} {_f(r['time_ms']['p95'], '.2f'):>8} "
@@ -1336,6 +1359,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="comma-separated subset of: " + ", ".join(CONDITIONS))
     parser.add_argument("--solvers", default=",".join(SOLVER_NAMES),
                         help="comma-separated subset of: " + ", ".join(SOLVER_NAMES))
+    parser.add_argument("--methods", default=None, metavar="LIST",
+                        help="our matchers to compare, comma-separated subset of nstar, "
+                             "triad, bleif (runs these instead of --solvers' 'ours'; the "
+                             "peers only when --solvers names them)")
     parser.add_argument("--peer-timeout-ms", type=float, default=d.peer_timeout_ms,
                         help="solve timeout passed to tetra3rs and cedar (default 5000)")
     parser.add_argument("--cache-dir", default=None,
@@ -1355,10 +1382,27 @@ def config_from_args(args: argparse.Namespace) -> BenchConfig:
         mag_noise=args.mag_noise, tol_px=args.tol_px, tol_sigma=args.tol_sigma,
         per_frame=args.per_frame,
         conditions=[c.strip() for c in args.conditions.split(",") if c.strip()],
-        solvers=[s.strip() for s in args.solvers.split(",") if s.strip()],
+        solvers=_solver_names(args),
         peer_timeout_ms=args.peer_timeout_ms, cache_dir=args.cache_dir,
         progress=not args.no_progress,
     )  # fmt: skip
+
+
+def _solver_names(args: argparse.Namespace) -> list[str]:
+    """``--solvers``, with ``--methods`` (if given) in place of ``ours`` and the default
+    peers left out."""
+    named = [s.strip() for s in args.solvers.split(",") if s.strip()]
+    methods = getattr(args, "methods", None)
+    if not methods:
+        return named
+    out = []
+    for m in (x.strip() for x in methods.split(",") if x.strip()):
+        if m not in METHOD_SOLVERS:
+            raise ValueError(f"--methods: unknown method {m!r} (choose from "
+                             f"{', '.join(METHOD_SOLVERS)})")
+        out.append(METHOD_SOLVERS[m])
+    explicit = args.solvers != ",".join(SOLVER_NAMES)
+    return out + [s for s in named if explicit and s != "ours"]
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:

@@ -262,6 +262,48 @@ class Estimator:
             self._mag_update(mag, rec)
         return self._finish(rec)
 
+    def add_fix(self, t: float, q_cam_icrs: ArrayLike, covariance_cam: ArrayLike,
+                source: str = "star fix") -> StepRecord:
+        """Adopt an attitude fix identified outside :meth:`step` — e.g. an operator-confirmed
+        candidate (:mod:`adfusion.starid.operator`) — taken at time ``t`` (s): ``q_cam_icrs``
+        with its 3×3 camera-frame covariance (rad²). It initialises the filter, or updates it
+        through the NIS gate like a solver fix (a rejection is recorded, never dropped
+        silently).
+
+        >>> import numpy as np
+        >>> est = Estimator(None)
+        >>> rec = est.add_fix(0.0, [1.0, 0.0, 0.0, 0.0], np.eye(3) * 1e-6)
+        >>> rec.fix_accepted, est.initialized
+        (True, True)
+        """
+        rec = StepRecord(t=float(t), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
+        if not np.isfinite(t) or (self.t is not None and t < self.t):
+            rec.rejected.append((source, f"bad time {t} (last step at {self.t})"))
+            return self._finish(rec)
+        try:
+            q = rot.normalize(np.asarray(q_cam_icrs, dtype=np.float64))
+            cov = np.asarray(covariance_cam, dtype=np.float64).reshape(3, 3)
+        except ValueError as e:
+            rec.rejected.append((source, f"bad fix: {e}"))
+            return self._finish(rec)
+        self._propagate_to(float(t), rec)
+        rec.sensors.append(source)
+        q_body_icrs = rot.multiply(self.q_body_cam, q)
+        cov_body = self.R_body_cam @ cov @ self.R_body_cam.T
+        if self.filter is None:
+            sigma0 = float(np.sqrt(max(float(np.max(np.linalg.eigvalsh(cov_body))), 0.0)))
+            self.filter = self._make_filter(q_body_icrs, max(sigma0, 1e-7))
+            rec.fix_accepted = True
+        else:
+            res = self.filter.update_attitude(q_body_icrs, cov_body)
+            rec.nis[source] = float(res.nis)
+            rec.fix_accepted = bool(res.accepted)
+            if not res.accepted:
+                rec.rejected.append((source, f"rejected by the filter gate: {res.reason}"))
+        if rec.fix_accepted:
+            self.misses = 0
+        return self._finish(rec)
+
     # --- pieces ---------------------------------------------------------------------------
 
     def _gyro_glitch(self, t: float, g: NDArray[np.float64]) -> str:

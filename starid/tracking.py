@@ -1,0 +1,209 @@
+"""Tracking of the :class:`starid.Solver`: with an attitude prior, the catalogue stars it
+predicts are associated with the detections in steps (wide gate, median offset, medium
+radius, Wahba, tight radius) and accepted with ≥ 2 stars when a chance coincidence is
+improbable.
+
+Example:
+    >>> from adfusion.starid.solver import Solver
+    >>> issubclass(Solver, Tracking)
+    True
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from adfusion.starid import rotations as rot
+from adfusion.starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
+from adfusion.starid.camera import Camera
+from adfusion.starid.solution import Candidate, Prior, Solution
+from adfusion.starid.verify import binomial_tail, one_to_one, rotation_from_pairs, variance_factor
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+__all__ = ["Tracking", "corner_sigma_px", "pair_within"]
+
+
+class Tracking:
+    """The tracking half of :class:`starid.Solver` (a mixin)."""
+
+    def _pairings_that_fit(self, b: NDArray, xy: NDArray, pred_xy: NDArray,
+                           pred_idx: NDArray, gate_px: float) -> int:
+        """How many pairs of distinct catalogue stars, one predicted within ``gate_px`` of
+        each of two detections (pixels ``xy``, directions ``b``), have the detections'
+        separation within the pair tolerance: 1 when the pairing is unique."""
+        near = [pred_idx[np.einsum("ij,ij->i", pred_xy - p, pred_xy - p) <= gate_px**2]
+                for p in xy]
+        if len(near[0]) == 0 or len(near[1]) == 0:
+            return 0
+        sep = math.acos(min(1.0, max(-1.0, float(b[0] @ b[1]))))
+        cosines = self.vectors[near[0]] @ self.vectors[near[1]].T
+        ang = np.arccos(np.clip(cosines, -1.0, 1.0))
+        fit = np.abs(ang - sep) <= self.tolerance_rad
+        fit &= near[0][:, None] != near[1][None, :]
+        return int(np.count_nonzero(fit))
+
+    def _solve_tracking(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
+        """Tracking: predict the catalogue stars in the prior's field, associate the
+        detections inside the prior's gate, refine, and accept with ≥ 2 stars when a
+        chance coincidence is improbable.
+
+        Association runs in steps so that a prior off by more than the star spacing
+        cannot pair stars crosswise: every predicted star takes its nearest detection
+        within the wide gate (k·σ), the median image offset of those pairs corrects the
+        prior's pointing, pairs are redone within a medium radius (what is left is roll),
+        then Wahba and re-association within the tight radius, twice. With a tight prior
+        (gate ≤ 2.5 match radii) the nearest pairs are taken directly. ``p_false`` is the
+        chance that this many of the M detections fall within the tight radius of
+        predicted stars by accident, times the number of alternative pairings the wide
+        gates allowed.
+
+        This runs once per frame in a filter loop with a few dozen stars, so it is written
+        for numpy's per-call overhead: a cached catalogue cone, one brute-force distance
+        matrix instead of a KD-tree, and no intermediate copies of the result.
+        """
+        cam = self.camera
+        q0 = prior.q_cam_icrs
+        gate_rad = math.radians(prior.k * prior.sigma_deg)
+        R0 = rot.to_matrix(q0)
+        pred_xy, pred_idx = self._predict(R0, cam, gate_rad)
+        if len(pred_xy) < 2:
+            return Solution(False, f"{len(pred_xy)} catalogue star(s) predicted in view",
+                            mode="tracking")
+        pix_rad = cam.pixel_scale_rad
+        tight = self._match_radius_px()
+        wide = max(gate_rad / pix_rad * 1.2 + tight, tight)
+        # predicted stars × detections: a few dozen each, cheaper than building a tree
+        dx = pred_xy[:, :1] - xy[:, 0]
+        dy = pred_xy[:, 1:] - xy[:, 1]
+        d2 = dx * dx
+        d2 += dy * dy
+        n_within = (d2 <= wide * wide).sum(axis=1)
+        hit = n_within > 0
+        n_hit = int(hit.sum())
+        if n_hit < 2:
+            return Solution(False, f"{n_hit} predicted star(s) with a detection in the gate",
+                            mode="tracking")
+        j = d2.argmin(axis=1)  # the nearest detection (inside the gate where hit)
+        # alternative pairings inside the wide gates (1 each when the prior is tight)
+        n_hyp = 2.0 ** int(np.count_nonzero(n_within >= 2))
+        tight_prior = wide <= 2.5 * tight
+        if tight_prior:
+            # a tight prior (the steady state of a running filter): the gates are nearly
+            # the match radius, so the nearest pairs are the answer — one fit, no rounds
+            p_sel = np.flatnonzero(hit)
+            det_sel = j[p_sel]
+            if len(set(det_sel.tolist())) < len(det_sel):  # a detection claimed twice
+                d = np.where(hit, np.sqrt(d2[np.arange(len(j)), j]), np.inf)
+                p_sel, det_sel = one_to_one(d, j)
+            order = np.argsort(det_sel)
+            det_i, cat_i = det_sel[order], pred_idx[p_sel[order]]
+            b_use = cam.pixels_to_vectors(xy[det_i])
+        else:
+            shift = np.median(xy[j[hit]] - pred_xy[hit], axis=0)
+            b_all = cam.pixels_to_vectors(xy)
+            # after the shift what is left is mostly roll (largest at the edges): pair
+            # within a medium radius, then tighten through two fits
+            medium = max(tight, 0.3 * wide)
+            det_i, cat_i = pair_within(xy, pred_xy + shift, pred_idx, medium)
+            predicted = np.zeros(len(self.vectors), dtype=bool)
+            predicted[pred_idx] = True
+            for _ in range(2):
+                if len(det_i) < 2:
+                    break
+                R = rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+                if R is None:
+                    return Solution(False, "tracked stars are collinear", mode="tracking")
+                det_i, cat_i = self._associate_icrs(b_all, R, tight * pix_rad)
+                # keep only stars the prior predicted (tracking never jumps elsewhere)
+                keep = predicted[cat_i]
+                det_i, cat_i = det_i[keep], cat_i[keep]
+            b_use = b_all[det_i]
+        if len(det_i) < 2:
+            return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
+                            mode="tracking")
+        sigma = self.centroid_sigma_px * pix_rad
+        try:
+            # near a tight prior Gauss–Newton steps reach Wahba's optimum for less than
+            # the SVD (the steady state of a filter loop)
+            w = wahba_near(q0, b_use, self.vectors[cat_i], sigma) if tight_prior \
+                else wahba_unit(b_use, self.vectors[cat_i], sigma)
+            # pairs the fit cannot place within the match radius (a noise blob or a
+            # streak's piece nearer the prediction than the star) leave; one refit,
+            # from this fit (its optimum is within a pixel or so)
+            keep = w.residuals_rad <= tight * pix_rad
+            n_keep = int(np.count_nonzero(keep))
+            if 2 <= n_keep < len(keep):
+                det_i, cat_i, b_use = det_i[keep], cat_i[keep], b_use[keep]
+                w = wahba_near(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma)
+            whole = self.whole_streak_px * pix_rad
+            if prior.smear_cam_rad is not None and _norm3(prior.smear_cam_rad) > whole:
+                v = streak_vectors(b_use, prior.smear_cam_rad)
+                if float(np.einsum("ij,ij->i", v, v).max()) > whole * whole:
+                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma,
+                                        prior.smear_cam_rad, whole)
+        except ValueError as e:
+            return Solution(False, f"tracking fit failed: {e}", mode="tracking")
+        offset = float(rot.angle_between(w.q_cam_icrs, q0))
+        # trace(P) ≥ its largest eigenvalue: a bound, at most √3 too wide, for free
+        sigma_fix = math.sqrt(float(w.covariance.trace()))
+        if offset > gate_rad + 3 * sigma_fix:
+            return Solution(False, f"fix {math.degrees(offset):.3g}° from the prior, outside "
+                                   f"its {prior.k:g}σ gate", mode="tracking")
+        cov = w.covariance * variance_factor(w)
+        corner_px = corner_sigma_px(cov, cam)
+        if corner_px > self.max_fix_sigma_px:
+            return Solution(False, f"fix too uncertain: 1σ {corner_px:.3g} px at the frame's "
+                                   f"corners > {self.max_fix_sigma_px:g} px (stars too close "
+                                   "together, or inconsistent)", mode="tracking")
+        p_hit = min(1.0, len(pred_xy) * math.pi * tight**2 / (cam.width * cam.height))
+        p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
+        if len(det_i) == 2:
+            # two stars fix an attitude whatever they are: every pair of catalogue stars in
+            # the prior's cone around the two detections with their separation is an equally
+            # good answer (a neighbour taken for the star turns the roll)
+            n_fit = self._pairings_that_fit(b_use, xy[det_i], pred_xy, pred_idx, wide)
+            if n_fit > 1:
+                p_false = max(p_false, (n_fit - 1) / n_fit)
+        matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
+        cand = Candidate(
+            q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,
+            p_false=p_false, n_pattern=len(det_i), camera=cam, covariance=cov,
+            _projector=self._project,
+        )
+        if p_false > self.p_false_max_tracking:
+            return Solution(False, f"ambiguous: {len(det_i)} tracked stars, p_false "
+                                   f"{p_false:.2g} > {self.p_false_max_tracking:.0e}",
+                            mode="tracking", candidates=[cand])
+        return Solution(True, "", q_cam_icrs=w.q_cam_icrs, matches=matches,
+                        matching_counter=1, covariance=cov, mode="tracking",
+                        time_s=time.perf_counter() - t0, p_false=p_false, path="tracking",
+                        candidates=[cand], residuals_rad=w.residuals_rad, camera=cam,
+                        n_detections=len(xy))
+
+
+def pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,
+                 radius_px: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Each detection to its nearest predicted star within a radius, one-to-one."""
+    det, j = one_to_one(*cKDTree(pred_xy).query(xy, distance_upper_bound=radius_px))
+    return det, pred_idx[j].astype(np.int64)
+
+
+
+def corner_sigma_px(cov: NDArray, cam: Camera) -> float:
+    """1-σ shift (px) of the frame's corners under an attitude covariance (camera frame):
+    pointing errors (x, y axes) move a corner by f·(1 + tan²θ) per radian, roll (z) by its
+    distance r from the centre; correlations ignored (an upper estimate)."""
+    f = 1.0 / cam.pixel_scale_rad
+    r = 0.5 * math.hypot(cam.width, cam.height)
+    k = f * (1.0 + (r / f) ** 2)
+    return math.sqrt(max(0.0, float(cov[0, 0] + cov[1, 1])) * k * k
+                     + max(0.0, float(cov[2, 2])) * r * r)
+
+
+
+def _norm3(v: NDArray) -> float:
+    x, y, z = v.tolist()
+    return math.sqrt(x * x + y * y + z * z)
