@@ -318,7 +318,7 @@ def test_cli_failures_are_one_line_with_exit_codes(sim, tmp_path, capsys):
         (["report", str(sim), "-o", str(afile)], 2, "not a folder"),
         (["simulate", "leo", "-o", str(tmp_path / "x.mcap"), "--duration", "1e9",
           "--no-render"], 1, "out of memory"),
-        (["solve", "--example", "--mag-limit", "99"], 2, "Hipparcos"),
+        (["solve", "--example", "--mag-limit", "-5"], 2, "brighter than every star"),
         (["solve", "--example", "--overlay", str(tmp_path / "o.txt")], 2, "image file name"),
         (["simulate", "leo", "-o", str(tmp_path / "none" / "x.mcap")], 2, "does not exist"),
         (["replay", str(sim), "-o", str(tmp_path / "o.mcap"), "--mag-limit", "nan"], 2,

@@ -61,11 +61,12 @@ def non_negative_float(text: str) -> float:
 
 
 def magnitude_limit(text: str) -> float:
-    """argparse type: a catalogue limit inside Hipparcos' range (V −1.5 … 12.5)."""
+    """argparse type: a catalogue limit, a finite V magnitude (99: every star — deep
+    catalogues are thinned per field, see ``--stars-per-fov``)."""
     value = _number(text)
-    if not -1.5 <= value <= 12.5:
+    if value < -1.5:
         raise argparse.ArgumentTypeError(
-            f"{value:g} is outside the Hipparcos catalogue's V −1.5 … 12.5 (typical 5–7)")
+            f"{value:g} is brighter than every star (the brightest, Sirius, is V −1.46)")
     return value
 
 
@@ -417,7 +418,7 @@ def _image_paths(items: Sequence[str]) -> list:
         if p.is_dir():
             found = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
             if not found:
-                raise ValueError(f"no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) in {p}")
+                raise UsageError(f"no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) in {p}")
             out.extend(found)
         elif not p.exists():
             raise UsageError(f"{p}: no such file")
@@ -472,7 +473,7 @@ class _Solvers:
             cat = catalog_for_camera(self.catalog, narrowest, spf)
             if ranged:
                 if a.fov_error:
-                    raise ValueError("give --fov LO:HI or --fov-error, not both")
+                    raise UsageError("give --fov LO:HI or --fov-error, not both")
                 kw = {"fov_range_deg": self.fov}
             else:
                 kw = {"fov_error_deg": a.fov_error}
@@ -865,6 +866,11 @@ def cmd_acs(args: argparse.Namespace) -> int:
         raise ValueError("Basilisk is not installed: pip install 'adfusion[bsk]'") from None
     if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
         raise UsageError("--duration must be a finite number > 0")
+    from adfusion.basilisk.scenarios import SCENARIOS
+
+    if args.scenario not in SCENARIOS:
+        raise UsageError(f"unknown scenario {args.scenario!r}; choose one of "
+                         f"{sorted(SCENARIOS)}")
     t0 = time.perf_counter()
     rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
                   images=args.images)
