@@ -1,4 +1,4 @@
-"""The long fuzz run of issue 16: every family of :mod:`adfusion.bench.fuzz` for N minutes.
+"""The long fuzz run of issue 16: every family of :mod:`adfusion.app.fuzz` for N minutes.
 
 Families, round robin: the MCAP reader (byte flips, zeroed and cut-out spans, truncation
 of two logs, zstd and uncompressed), the solver (random attitudes, false stars, dropped
@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--folder", help="work folder (default: a new temporary one)")
     p.add_argument("--out", help="also write the JSON here")
     args = p.parse_args(argv)
-    from adfusion.bench.fuzz import run
+    from adfusion.app.fuzz import run
 
     warnings.simplefilter("ignore")
     result = run(args.minutes, seed=args.seed, folder=args.folder)

@@ -1,5 +1,5 @@
 """Fuzzing in the suite (issue 16, item 15): a reduced, derandomised run of the properties
-of :mod:`adfusion.bench.fuzz` — the long run is ``benchmarks/fuzz.py --minutes N``.
+of :mod:`adfusion.app.fuzz` — the long run is ``benchmarks/fuzz.py --minutes N``.
 
 * the MCAP reader under truncation, byte flips, zeroed and cut-out spans: never a
   traceback, never a message the file does not hold, every loss reported, and never more
@@ -19,7 +19,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from adfusion.bench import fuzz
+from adfusion.app import fuzz
 
 
 def fuzz_settings(n: int) -> settings:
