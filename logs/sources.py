@@ -26,10 +26,13 @@ from __future__ import annotations
 
 import csv
 import heapq
+import io
+import math
 import os
 import warnings
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -62,6 +65,37 @@ def to_grey(image: np.ndarray) -> np.ndarray:
     return image
 
 
+def _finite(cell: str, what: str) -> float:
+    """A CSV cell as a finite float; the error names the column."""
+    try:
+        value = float(cell)
+    except ValueError:
+        raise ValueError(f"{what}: {cell!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{what}: {cell!r} is not a finite number")
+    return value
+
+
+def _csv_rows(path: str | os.PathLike[str]) -> tuple[list[str], Iterator[dict[str, str]], Any]:
+    """``(fieldnames, rows, reader)`` of a UTF-8 CSV; non-UTF-8 text or a missing header
+    is a :class:`ValueError` naming the file."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as f:
+            text = f.read()
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path}: not UTF-8 text (byte 0x{exc.object[exc.start]:02x} at "
+                         f"offset {exc.start}); save the CSV as UTF-8") from None
+    except IsADirectoryError:
+        raise ValueError(f"{path}: is a directory, not a CSV file") from None
+    reader = csv.DictReader(io.StringIO(text, newline=""))
+    try:
+        fields = [f.strip() for f in (reader.fieldnames or ())]
+    except csv.Error as exc:
+        raise ValueError(f"{path}: not a CSV file ({exc})") from None
+    reader.fieldnames = fields
+    return fields, reader, reader
+
+
 def read_sensor_csv(path: str | os.PathLike[str],
                     problems: list[str] | None = None) -> list[Message]:
     """Gyro and magnetometer samples from a CSV file, sorted by time.
@@ -76,8 +110,10 @@ def read_sensor_csv(path: str | os.PathLike[str],
         magnetic field, nT, body frame → ``/mag`` ``{"b_body": [...]}``.
 
     Either group may be absent from the file or empty in a row (sensors at different rates
-    share one file). A malformed row stops the reading there with a warning naming the line;
-    the rows before it are returned.
+    share one file). A malformed row (a cell that is not a finite number, a partly empty
+    group) stops the reading there with a warning naming the line and column; the rows
+    before it are returned. A file that is not UTF-8 text, or lacks ``t_s``, is a
+    :class:`ValueError`.
 
     Example:
         >>> import os, tempfile
@@ -90,46 +126,76 @@ def read_sensor_csv(path: str | os.PathLike[str],
     """
     problems = [] if problems is None else problems
     out: list[Message] = []
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        fields = set(reader.fieldnames or ())
-        if "t_s" not in fields:
-            raise ValueError(f"{path}: no 't_s' column (have {sorted(fields)})")
-        groups = [(cols, topic, key) for cols, topic, key in
-                  ((GYRO_COLUMNS, GYRO_TOPIC, "omega"), (MAG_COLUMNS, MAG_TOPIC, "b_body"))
-                  if set(cols) <= fields]
-        if not groups:
-            raise ValueError(f"{path}: neither {GYRO_COLUMNS} nor {MAG_COLUMNS} columns")
-        for row in reader:
-            line = reader.line_num
-            try:
-                t_s = float(row["t_s"])
-                rows = []
-                for cols, topic, key in groups:
-                    cells = [(row.get(c) or "").strip() for c in cols]
-                    if all(cells):
-                        rows.append(Message(t_s, topic, {key: [float(c) for c in cells]}))
-                    elif any(cells):
-                        raise ValueError(f"partly empty {cols}")
-            except (TypeError, ValueError) as exc:
-                last = f"t = {out[-1].t_s} s" if out else "no samples"
-                _report(problems, f"{path}: broken at line {line} ({exc}); read up to {last}")
-                break
-            out.extend(rows)
+    names, reader, _ = _csv_rows(path)
+    fields = set(names)
+    if "t_s" not in fields:
+        raise ValueError(f"{path}: no 't_s' column (have {sorted(fields)})")
+    groups = [(cols, topic, key) for cols, topic, key in
+              ((GYRO_COLUMNS, GYRO_TOPIC, "omega"), (MAG_COLUMNS, MAG_TOPIC, "b_body"))
+              if set(cols) <= fields]
+    if not groups:
+        raise ValueError(f"{path}: neither {GYRO_COLUMNS} nor {MAG_COLUMNS} columns")
+    for row in reader:
+        line = reader.line_num
+        try:
+            t_s = _finite((row.get("t_s") or "").strip(), "t_s")
+            if t_s < 0:
+                raise ValueError(f"t_s: {t_s} < 0 (times are seconds ≥ 0)")
+            rows = []
+            for cols, topic, key in groups:
+                cells = [(row.get(c) or "").strip() for c in cols]
+                if all(cells):
+                    rows.append(Message(t_s, topic, {key: [_finite(c, n)
+                                                           for c, n in zip(cells, cols,
+                                                                           strict=True)]}))
+                elif any(cells):
+                    raise ValueError(f"partly empty {cols}")
+        except (TypeError, ValueError, csv.Error) as exc:
+            last = f"t = {out[-1].t_s} s" if out else "no samples"
+            _report(problems, f"{path}: broken at line {line} ({exc}); read up to {last}")
+            break
+        out.extend(rows)
     out.sort(key=lambda m: m.t_s)
     return out
 
 
+def _check_fps(fps: Any, missing: str) -> None:
+    if fps is None:
+        raise ValueError(missing)
+    try:
+        ok = math.isfinite(fps) and fps > 0
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"fps must be a finite frame rate > 0, got {fps!r}")
+
+
+def _check_t0(t0_s: Any) -> None:
+    try:
+        ok = math.isfinite(t0_s) and t0_s >= 0
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"t0_s must be a finite time ≥ 0, got {t0_s!r}")
+
+
 def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
                  timestamps_csv: str | os.PathLike[str] | None) -> list[float]:
+    _check_t0(t0_s)
     if timestamps_csv is None:
-        if not fps or fps <= 0:
-            raise ValueError("give fps (> 0) or a timestamps CSV")
+        _check_fps(fps, "give fps (> 0) or a timestamps CSV")
         return [t0_s + i / fps for i in range(len(names))]
     times: dict[str, float] = {}
-    with open(timestamps_csv, newline="") as f:
-        for row in csv.DictReader(f):
-            times[os.path.basename(row["filename"])] = float(row["t_s"])
+    fields, rows, reader = _csv_rows(timestamps_csv)
+    if not {"filename", "t_s"} <= set(fields):
+        raise ValueError(f"{timestamps_csv}: needs the columns 'filename' and 't_s' (have "
+                         f"{sorted(fields)})")
+    try:
+        for row in rows:
+            t_s = _finite((row.get("t_s") or "").strip(), "t_s")
+            times[os.path.basename(row.get("filename") or "")] = t_s
+    except (ValueError, csv.Error) as exc:
+        raise ValueError(f"{timestamps_csv}: line {reader.line_num}: {exc}") from None
     missing = [n for n in names if n not in times]
     if missing:
         raise ValueError(f"{timestamps_csv}: no time for {missing[:3]} ({len(missing)} images)")
@@ -153,6 +219,8 @@ class ImageFolderSource:
                  t0_s: float = 0.0, timestamps_csv: str | os.PathLike[str] | None = None,
                  sensors_csv: str | os.PathLike[str] | None = None) -> None:
         self.folder = Path(folder)
+        if not self.folder.is_dir():
+            raise ValueError(f"{self.folder}: not a folder of images")
         self.names = sorted(p.name for p in self.folder.iterdir()
                             if p.suffix.lower() in IMAGE_SUFFIXES)
         self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv)
@@ -202,10 +270,15 @@ class VideoSource:
             container_fps = float(cap.get(cv2.CAP_PROP_FPS))
         finally:
             cap.release()
-        self.fps = fps if fps else container_fps
-        if not self.fps or self.fps <= 0:
-            raise ValueError(f"{self.path}: no frame rate in the container; pass fps")
-        self.t0_s = t0_s
+        _check_t0(t0_s)
+        if fps is not None:
+            _check_fps(fps, "")
+            self.fps = float(fps)
+        else:
+            self.fps = container_fps
+            if not (math.isfinite(self.fps) and self.fps > 0):
+                raise ValueError(f"{self.path}: no frame rate in the container; pass fps")
+        self.t0_s = float(t0_s)
         self.sensors_csv = sensors_csv
         self.problems: list[str] = []
 
@@ -257,7 +330,11 @@ class McapSource:
                  topic_map: Mapping[str, str] | None = None,
                  topics: Iterable[str] | None = None) -> None:
         self.reader = McapLogReader(path, topic_map=topic_map, topics=topics, warn=True)
-        self.problems: list[str] = [] if self.reader.problem is None else [str(self.reader.problem)]
+
+    @property
+    def problems(self) -> list[str]:
+        """Every problem the reader found so far (iteration can add a chunk's CRC failure)."""
+        return [str(p) for p in self.reader.problems]
 
     def __iter__(self) -> Iterator[Message]:
         return self.reader.messages()

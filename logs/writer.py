@@ -29,6 +29,8 @@ Example:
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 from collections.abc import Iterable, Mapping
 from types import TracebackType
@@ -88,6 +90,18 @@ def utc_iso(when: Any) -> str:
     ns = utc_ns(when)
     t = dt.datetime(1970, 1, 1, tzinfo=dt.UTC) + dt.timedelta(microseconds=ns // 1000)
     return t.strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+#: Name of the metadata record with the SHA-256 of every other metadata record and attachment.
+DIGESTS = "digests"
+
+
+def digest_metadata(encoded: Mapping[str, str]) -> str:
+    """SHA-256 of a metadata record's string map (keys sorted; the reader recomputes it).
+
+    >>> digest_metadata({"b": "1", "a": "x"}) == digest_metadata({"a": "x", "b": "1"})
+    True
+    """
+    text = json.dumps(dict(encoded), sort_keys=True, separators=(",", ":"), ensure_ascii=False)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 class _UnbufferedFile:
@@ -97,14 +111,18 @@ class _UnbufferedFile:
     call per chunk and nothing is left in a Python buffer when the process dies.
     """
 
-    def __init__(self, path: str | os.PathLike[str]) -> None:
+    def __init__(self, path: str | os.PathLike[str], name: str | None = None) -> None:
         self._raw = open(path, "wb", buffering=0)
+        self._name = name or os.fspath(path)  # the file as the user knows it (for errors)
 
     def write(self, data: bytes | bytearray | memoryview) -> int:
         view = memoryview(data)
-        while view:
-            n = self._raw.write(view)
-            view = view[n:]
+        try:
+            while view:
+                n = self._raw.write(view)
+                view = view[n:]
+        except OSError as exc:  # a full disk says which file it was writing
+            raise OSError(exc.errno, exc.strerror, self._name) from exc
         return len(data)
 
     def tell(self) -> int:
@@ -133,6 +151,11 @@ class LogWriter:
             run seconds: every time is stored ``+ clock_offset_ns``, recorded in the
             ``clock`` metadata (``start_utc``, ``offset_ns``), which
             :class:`~adfusion.logs.reader.McapLogReader` subtracts again.
+        atomic: write to ``path + ".partial"`` and rename it to ``path`` when :meth:`close`
+            completes, so ``path`` is never a half-written file (a killed writer leaves the
+            ``.partial`` file, readable up to its last chunk). A run that fails calls
+            :meth:`abort`: the log is closed with an ``incomplete`` metadata record saying
+            why and renamed all the same (or removed when the disk is full).
 
     Topics are registered on first use: the Foxglove ones by the typed methods, the JSON ones by
     :meth:`write_json` with the schema from :data:`logs.schemas.JSON_SCHEMAS` (or one given to
@@ -141,10 +164,11 @@ class LogWriter:
 
     def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = 1024 * 1024,
                  compression: Literal["zstd", "lz4", "none"] | None = "zstd",
-                 fsync: bool = False, start_utc: Any = None) -> None:
+                 fsync: bool = False, start_utc: Any = None, atomic: bool = False) -> None:
         self.path = os.fspath(path)
         self.clock_offset_ns = 0 if start_utc is None else utc_ns(start_utc)
-        self._file = _UnbufferedFile(self.path)
+        self.partial_path = self.path + ".partial" if atomic else self.path
+        self._file = _UnbufferedFile(self.partial_path, self.path)
         self._fsync = fsync
         self._writer = Writer(
             self._file,  # type: ignore[arg-type]
@@ -153,9 +177,12 @@ class LogWriter:
             index_types=IndexType.ALL,
         )
         self._writer.start(profile="", library="adfusion logs")
+        self._digests: dict[str, str] = {}  # record name → sha256 (see digest_metadata)
         if start_utc is not None:
-            self._writer.add_metadata("clock", encode_metadata({
-                "start_utc": utc_iso(start_utc), "offset_ns": self.clock_offset_ns}))
+            clock = encode_metadata({"start_utc": utc_iso(start_utc),
+                                     "offset_ns": self.clock_offset_ns})
+            self._writer.add_metadata("clock", clock)
+            self._digests["metadata:clock"] = digest_metadata(clock)
         self._channels: dict[str, tuple[int, str]] = {}
         self._json_schemas: dict[str, tuple[str, dict[str, Any]]] = dict(JSON_SCHEMAS)
         self._proto_schemas: dict[str, int] = {}
@@ -168,17 +195,46 @@ class LogWriter:
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
-        self.close()
+        if exc is not None:
+            self.abort(f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__)
+        else:
+            self.close()
 
     def close(self) -> None:
-        """Finish the last chunk, write the summary and indexes, close the file (idempotent)."""
+        """Finish the last chunk, write the summary and indexes, close the file (idempotent);
+        with ``atomic``, then rename it to :attr:`path`."""
         if self._closed:
             return
         self._closed = True
-        self._writer.finish()
-        if self._fsync:
-            self._file.fsync()
-        self._file.close()
+        try:
+            if self._digests:
+                self._writer.add_metadata(DIGESTS, dict(self._digests))
+            self._writer.finish()
+            if self._fsync:
+                self._file.fsync()
+        finally:
+            self._file.close()
+        if self.partial_path != self.path:
+            os.replace(self.partial_path, self.path)
+
+    def abort(self, reason: str) -> None:
+        """End a run that failed: an ``incomplete`` metadata record (``reason``, messages
+        written), then :meth:`close`. When even that fails (a full disk), the partial file
+        is removed and the original error stands."""
+        if self._closed:
+            return
+        try:
+            self.add_metadata("incomplete", {"reason": reason,
+                                             "messages_written": self.message_count})
+            self.close()
+        except OSError:
+            self._closed = True
+            self._file.close()
+            if self.partial_path != self.path:
+                try:
+                    os.remove(self.partial_path)
+                except OSError:
+                    pass
 
     def flush(self) -> None:
         """End the chunk in progress now (it becomes readable after a crash)."""
@@ -320,13 +376,19 @@ class LogWriter:
     # ------------------------------------------------------------------ file-level records
     def add_metadata(self, name: str, data: Mapping[str, Any]) -> None:
         """MCAP metadata record (e.g. ``"config"``, the run configuration). Non-string values
-        are stored as JSON text; :meth:`logs.reader.McapLogReader.metadata` restores them."""
-        self._writer.add_metadata(name, encode_metadata(data))
+        are stored as JSON text; :meth:`logs.reader.McapLogReader.metadata` restores them.
+
+        Its SHA-256 goes into the ``digests`` record written at :meth:`close`, which the
+        reader checks: a calibration edited after recording is refused, not used."""
+        encoded = encode_metadata(data)
+        self._digests[f"metadata:{name}"] = digest_metadata(encoded)
+        self._writer.add_metadata(name, encoded)
 
     def add_attachment(self, name: str, data: bytes, media_type: str = "application/octet-stream",
                        t_s: float = 0.0) -> None:
         """MCAP attachment (a file carried along with the log)."""
         t_ns = self._ns(t_s)
+        self._digests[f"attachment:{name}"] = hashlib.sha256(bytes(data)).hexdigest()
         self._writer.add_attachment(create_time=t_ns, log_time=t_ns, name=name,
                                     media_type=media_type, data=bytes(data))
 

@@ -181,6 +181,11 @@ class Scenario:
     ) -> None:
         if not (np.isfinite(duration_s) and duration_s > 0):
             raise ValueError(f"duration_s must be > 0, got {duration_s!r}")
+        for what, rate in (("gyro_hz", gyro_hz), ("mag_hz", mag_hz), ("fps", fps)):
+            if not (np.isfinite(rate) and rate > 0):
+                raise ValueError(f"{what} must be a finite rate > 0, got {rate!r}")
+        if not (np.isfinite(exposure_s) and exposure_s >= 0):
+            raise ValueError(f"exposure_s must be a finite duration ≥ 0, got {exposure_s!r}")
         self.name = name
         self.camera = camera
         self.q_body_cam = rot.canonical(rot.normalize(np.asarray(q_body_cam, np.float64)))

@@ -54,6 +54,10 @@ class Prior:
                              "[w,x,y,z]") from None
         if not (math.isfinite(self.sigma_deg) and self.sigma_deg > 0):
             raise ValueError(f"Prior.sigma_deg must be positive, got {self.sigma_deg}")
+        if not (isinstance(self.k, int | float | np.floating | np.integer)
+                and math.isfinite(self.k) and self.k > 0):
+            raise ValueError(f"Prior.k (the gate in σ) must be a finite number > 0, "
+                             f"got {self.k!r}")
         object.__setattr__(self, "q_cam_icrs", q)
         if self.smear_cam_rad is not None:
             sm = np.asarray(self.smear_cam_rad, dtype=np.float64)

@@ -12,11 +12,130 @@ Example:
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Sequence
+
+from adfusion.app.errors import UsageError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".pgm", ".ppm")
+
+
+def _number(text: str, what: str = "a number") -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not {what}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{text!r} is not a finite number")
+    return value
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    return _number(text)
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number ≥ 0."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{text!r} must be ≥ 0")
+    return value
+
+
+def magnitude_limit(text: str) -> float:
+    """argparse type: a catalogue limit, a finite V magnitude (99: every star — deep
+    catalogues are thinned per field, see ``--stars-per-fov``)."""
+    value = _number(text)
+    if value < -1.5:
+        raise argparse.ArgumentTypeError(
+            f"{value:g} is brighter than every star (the brightest, Sirius, is V −1.46)")
+    return value
+
+
+def image_path(text: str) -> str:
+    """argparse type: an output image name OpenCV can write (by its suffix)."""
+    if not text.lower().endswith(IMAGE_SUFFIXES):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give an image file name ending in one of {', '.join(IMAGE_SUFFIXES)}")
+    return text
+
+
+def _output_file(path: str, flag: str = "-o") -> None:
+    """A file the command will write: not a folder, in a folder that exists."""
+    if os.path.isdir(path):
+        raise UsageError(f"{flag} {path} is a folder; give a file name")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise UsageError(f"{flag} {path}: the folder {parent} does not exist")
+
+
+def _output_folder(path: str, flag: str = "-o") -> None:
+    """A folder the command will write into (created if missing): not an existing file."""
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise UsageError(f"{flag} {path} exists and is not a folder; give a folder name")
+
+
+def _input_file(path: str, what: str = "input") -> None:
+    """An input file named on the command line: it exists and is not a folder (a usage
+    error otherwise; what is wrong inside a file is an input problem, exit 1)."""
+    if os.path.isdir(path):
+        raise UsageError(f"{path}: is a folder, not an {what} file")
+    if not os.path.exists(path):
+        raise UsageError(f"{path}: no such file")
+
+
+def describe_error(exc: BaseException) -> str:
+    """One line saying what went wrong, for any exception a command can meet.
+
+    >>> describe_error(IsADirectoryError(21, "Is a directory", "out"))
+    'out: is a folder, not a file'
+    >>> describe_error(MemoryError())
+    'out of memory: the request is too large (a shorter --duration, a lower --mag-limit)'
+    """
+    if isinstance(exc, MemoryError):
+        return "out of memory: the request is too large (a shorter --duration, a lower " \
+               "--mag-limit)"
+    if isinstance(exc, OSError) and exc.filename is None and exc.errno is None and exc.args:
+        return " ".join(str(exc).split())  # raised with a message of ours
+    if isinstance(exc, OSError) and not isinstance(exc, ValueError):
+        name = exc.filename if exc.filename is not None else "output"
+        if exc.errno == errno.ENOSPC:
+            return f"{name}: no space left on the device"
+        if isinstance(exc, IsADirectoryError):
+            return f"{name}: is a folder, not a file"
+        if isinstance(exc, NotADirectoryError):
+            return f"{name}: part of this path is not a folder"
+        if isinstance(exc, FileExistsError):
+            return f"{name}: exists already"
+        if isinstance(exc, FileNotFoundError):
+            return f"{name}: no such file or folder"
+        if isinstance(exc, PermissionError):
+            return f"{name}: permission denied"
+        return f"{name}: {exc.strerror or exc}"
+    if type(exc).__module__.startswith("cv2"):
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        return "OpenCV: " + (lines[-1] if lines else type(exc).__name__)
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    if isinstance(exc, ValueError | KeyError | TypeError | ArithmeticError | LookupError):
+        if isinstance(exc, ValueError):
+            return text
+        return f"{type(exc).__name__}: {text}"
+    return (f"internal error: {type(exc).__name__}: {text} (set ADFUSION_DEBUG=1 for the "
+            "traceback)")
 
 
 def build_parser(bench: bool = True) -> argparse.ArgumentParser:
@@ -32,7 +151,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     d.add_argument("image", nargs="?", help="image file (TIFF, PNG, JPEG)")
     d.add_argument("--example", action="store_true",
                    help="render and use the built-in synthetic example frame")
-    d.add_argument("--sigma", type=float, default=5.0, help="threshold in noise sigmas")
+    d.add_argument("--sigma", type=positive_float, default=5.0,
+                   help="threshold in noise sigmas")
     d.add_argument("--max", type=int, default=20, help="rows to print (default 20)")
     d.add_argument("--json", action="store_true", help="print JSON instead of a table")
     d.set_defaults(func=cmd_detect)
@@ -47,20 +167,22 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     s.add_argument("--fov", metavar="DEG|LO:HI",
                    help="horizontal field of view, degrees: an estimate (12, with "
                         "--fov-error) or a range LO:HI (8:16; the camera is then fitted)")
-    s.add_argument("--fov-error", type=float, default=0.0,
+    s.add_argument("--fov-error", type=non_negative_float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
     s.add_argument("--camera", metavar="YAML",
                    help="OpenCV camera file (e.g. from `adfusion calibrate`) instead of --fov")
-    s.add_argument("--mag-limit", type=float, default=6.5,
+    s.add_argument("--mag-limit", type=magnitude_limit, default=6.5,
                    help="catalogue limit, estimated Johnson V (default 6.5)")
     s.add_argument("--stars-per-fov", type=int, default=None,
                    help="deep catalogues: keep the brightest N stars per field-sized patch "
                         "of sky (default: 30, applied when the catalogue holds more)")
-    s.add_argument("--epoch", type=float, default=None,
+    s.add_argument("--epoch", type=finite_float, default=None,
                    help="observation epoch, Julian year (default: now)")
     s.add_argument("--method", choices=["nstar", "triad", "bleif"], default="nstar")
-    s.add_argument("--sigma", type=float, default=5.0, help="detection threshold, sigmas")
-    s.add_argument("--overlay", metavar="PNG", help="write an overlay image (one image only)")
+    s.add_argument("--sigma", type=positive_float, default=5.0,
+                   help="detection threshold, sigmas")
+    s.add_argument("--overlay", metavar="PNG", type=image_path,
+                   help="write an overlay image (one image only; .png, .jpg, .tif, ...)")
     s.add_argument("-o", "--out-dir", metavar="DIR",
                    help="write <image>.json per image here (and .wcs / .corr if asked)")
     s.add_argument("--wcs", action="store_true",
@@ -103,7 +225,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                         "pass to Berlin)")
     sm.add_argument("scenario", choices=["oedipus", "leo", "leo3", "tubsat"])
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
-    sm.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    sm.add_argument("--duration", type=positive_float, default=60.0,
+                    help="seconds (default 60)")
     sm.add_argument("--seed", type=int, default=0)
     sm.add_argument("--no-render", action="store_true",
                     help="write star centroids instead of rendered images (fast)")
@@ -146,11 +269,17 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--image-topic", help="ROS 2 bag: the image topic (default: by type)")
     g.add_argument("--imu-topic", help="ROS 2 bag: the Imu topic (default: by type)")
     g.add_argument("--mag-topic", help="ROS 2 bag: the MagneticField topic (default: by type)")
+    g.add_argument("--config", metavar="JSON",
+                   help="the run configuration (q_body_cam, gyro noise, camera, mag_limit) "
+                        "for a log that lacks its config metadata")
+    g.add_argument("--assume-defaults", action="store_true",
+                   help="replay a log without configuration with an identity camera mount "
+                        "and default noise (recorded in the output)")
     g = rp.add_argument_group("detection and identification")
     g.add_argument("--sigma", type=float, help="detection threshold, noise sigmas (default 5)")
     g.add_argument("--fov-error", type=float, default=0.0, metavar="DEG",
                    help="± uncertainty of the field of view for lost-in-space (default 0)")
-    g.add_argument("--mag-limit", type=float, default=None,
+    g.add_argument("--mag-limit", type=magnitude_limit, default=None,
                    help="catalogue limit, V (default: the log's, else 5.5)")
     g.add_argument("--epoch", type=float, help="catalogue epoch, Julian year (default: the "
                    "log's, else 2000)")
@@ -191,7 +320,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     dm = sub.add_parser("demo", help="simulate a short OEDIPUS-like flight, replay it, report")
     dm.add_argument("-o", "--output", default="adfusion-demo", help="folder (default "
                     "./adfusion-demo)")
-    dm.add_argument("--duration", type=float, default=20.0, help="seconds (default 20)")
+    dm.add_argument("--duration", type=positive_float, default=20.0,
+                    help="seconds (default 20)")
     dm.set_defaults(func=cmd_demo)
 
     b = sub.add_parser("bench", help="benchmarks against the peers (tetra3rs, cedar-solve)")
@@ -230,21 +360,36 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
+    try:
+        args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
+    except SystemExit as e:  # --help (0) or a usage error (2), already printed by argparse
+        return e.code if isinstance(e.code, int) else 2
+    # One handler for every command: a failure is one line on stderr and an exit code —
+    # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
         return int(args.func(args) or 0)
+    except (UsageError, FileNotFoundError) as e:  # a path named on the command line is absent
+        print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
+        return 2
     except BrokenPipeError:  # output piped into `head`: not an error
         sys.stderr.close()
         return 0
-    except (ValueError, OSError) as e:
-        print(f"adfusion {args.command}: error: {e}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"adfusion {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:
+        if os.environ.get("ADFUSION_DEBUG"):
+            raise
+        print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
+        return 1
 
 
 def cmd_detect(args: argparse.Namespace) -> int:
     from adfusion import starid
     if args.example == bool(args.image):
-        raise ValueError("give an IMAGE or --example (one of them)")
+        raise UsageError("give an IMAGE or --example (one of them)")
+    if args.image:
+        _input_file(args.image, "image")
     truth_xy = None
     if args.example:
         from adfusion.app import examples
@@ -300,13 +445,13 @@ def parse_fov(text: str) -> tuple[float, float]:
     try:
         vals = [float(p) for p in parts]
     except ValueError:
-        raise ValueError(f"--fov must be degrees (12) or a range LO:HI (8:16), got {text!r}"
+        raise UsageError(f"--fov must be degrees (12) or a range LO:HI (8:16), got {text!r}"
                          ) from None
     if len(vals) not in (1, 2) or not all(math.isfinite(v) and 0 < v < 179 for v in vals):
-        raise ValueError(f"--fov must be degrees in (0, 179) or LO:HI, got {text!r}")
+        raise UsageError(f"--fov must be degrees in (0, 179) or LO:HI, got {text!r}")
     lo, hi = (vals[0], vals[0]) if len(vals) == 1 else (vals[0], vals[1])
     if lo > hi:
-        raise ValueError(f"--fov LO:HI needs LO ≤ HI, got {text!r}")
+        raise UsageError(f"--fov LO:HI needs LO ≤ HI, got {text!r}")
     return lo, hi
 
 
@@ -328,10 +473,10 @@ def _image_paths(items: Sequence[str]) -> list:
         if p.is_dir():
             found = sorted(f for f in p.iterdir() if f.suffix.lower() in _IMAGE_SUFFIXES)
             if not found:
-                raise ValueError(f"no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) in {p}")
+                raise UsageError(f"no images ({', '.join(sorted(_IMAGE_SUFFIXES))}) in {p}")
             out.extend(found)
         elif not p.exists():
-            raise FileNotFoundError(f"image file not found: {str(p)!r}")
+            raise UsageError(f"{p}: no such file")
         else:
             out.append(p)
     return out
@@ -353,7 +498,7 @@ class _Solvers:
 
             self.camera_file = read_camera_yaml(args.camera)
         elif args.fov is None:
-            raise ValueError("--fov (horizontal field of view estimate, degrees) or --camera "
+            raise UsageError("--fov (horizontal field of view estimate, degrees) or --camera "
                              "(a camera YAML) is required")
         self._by_size: dict = {}
 
@@ -383,7 +528,7 @@ class _Solvers:
             cat = catalog_for_camera(self.catalog, narrowest, spf)
             if ranged:
                 if a.fov_error:
-                    raise ValueError("give --fov LO:HI or --fov-error, not both")
+                    raise UsageError("give --fov LO:HI or --fov-error, not both")
                 kw = {"fov_range_deg": self.fov}
             else:
                 kw = {"fov_error_deg": a.fov_error}
@@ -401,10 +546,12 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from adfusion.starid.detect import read_image
 
     if args.example == bool(args.images):
-        raise ValueError("give IMAGE(s) or --example (one of them)")
+        raise UsageError("give IMAGE(s) or --example (one of them)")
     paths = [] if args.example else _image_paths(args.images)
     if args.overlay and len(paths) > 1:
-        raise ValueError("--overlay takes one image (use --out-dir for a batch)")
+        raise UsageError("--overlay takes one image (use --out-dir for a batch)")
+    if args.overlay:
+        _output_file(args.overlay, "--overlay")
     out_dir = None
     if args.out_dir or args.wcs or args.corr:
         from pathlib import Path
@@ -565,7 +712,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.camera:
         camera = read_camera_yaml(args.camera)
     elif args.fov is None:
-        raise ValueError("--fov (horizontal field of view estimate, degrees) or --camera "
+        raise UsageError("--fov (horizontal field of view estimate, degrees) or --camera "
                          "(a starting camera YAML) is required")
     fov = parse_fov(args.fov) if args.fov is not None else None
     terms = "auto" if args.terms.strip() == "auto" else tuple(
@@ -685,6 +832,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise ValueError("--duration must be positive")
     if args.ros2 and args.no_render:
         raise ValueError("--ros2 writes camera images: drop --no-render")
+    _output_file(args.output)
     if args.scenario == "tubsat":  # its own timeline: contact at 23:06:20 to the target
         from adfusion.app.tubsat_log import simulate_tubsat
 
@@ -721,17 +869,31 @@ def cmd_replay(args: argparse.Namespace) -> int:
         except ValueError:
             mount = []
         if len(mount) != 4:
-            raise ValueError(f"--mount {args.mount}: give q_body_cam as four numbers w,x,y,z")
+            raise UsageError(f"--mount {args.mount}: give q_body_cam as four numbers w,x,y,z")
     heads = None
     if args.heads:
         try:
             heads = [int(k) for k in args.heads.split(",")]
         except ValueError:
-            raise ValueError(f"--heads {args.heads}: camera indices such as 0,2") from None
+            raise UsageError(f"--heads {args.heads}: camera indices such as 0,2") from None
     if args.start_utc:
         from adfusion.logs.writer import utc_iso
 
-        utc_iso(args.start_utc)  # checked here: a one-line error before any work
+        try:
+            utc_iso(args.start_utc)  # checked here: a one-line error before any work
+        except ValueError as exc:
+            raise UsageError(f"--start-utc: {exc}") from None
+    _output_file(args.output)
+    config = None
+    if args.config:
+        _input_file(args.config, "JSON")
+        try:
+            with open(args.config, encoding="utf-8") as f:
+                config = json.load(f)
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{args.config}: not a JSON file ({exc})") from None
+        if not isinstance(config, dict):
+            raise ValueError(f"{args.config}: the configuration must be a JSON object")
     options = ReplayOptions(use_gyro=not args.no_gyro, use_mag=not args.no_mag,
                             mag_limit=args.mag_limit, camera=camera, fov_deg=args.fov,
                             q_body_cam=mount, start_utc=args.start_utc, sigma=args.sigma,
@@ -742,9 +904,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
                smooth=args.smooth, smooth_mode=args.smoother, compression=args.compression,
                fps=args.fps, timestamps=args.timestamps, imu=args.imu,
                image_topic=args.image_topic, imu_topic=args.imu_topic,
-               mag_topic=args.mag_topic)
+               mag_topic=args.mag_topic, config=config,
+               assume_defaults=args.assume_defaults)
     print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
-    return 1 if s.smoother.get("error") else 0  # the filter's output is written either way
+    # the output is written either way; 1 says it carries problems (listed above)
+    return 1 if s.smoother.get("error") or s.problems else 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -763,11 +927,18 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from adfusion.app.report import report
+    from adfusion.app.report import log_problems, report
+
+    _input_file(args.log, "MCAP")
+    _output_folder(args.output)
+    from adfusion.logs import McapLogReader
 
     files = report(args.log, args.output, progress=sys.stderr.isatty())
     print("\n".join(str(f) for f in files))
-    return 0
+    problems = log_problems(McapLogReader(args.log, warn=False))
+    for p in problems:
+        print(f"problem: {p}")
+    return 1 if problems else 0
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -776,6 +947,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from adfusion.app.replay import replay, simulate
     from adfusion.app.report import report
 
+    _output_folder(args.output)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -805,8 +977,13 @@ def cmd_acs(args: argparse.Namespace) -> int:
         if (e.name or "").split(".")[0] != "Basilisk":
             raise
         raise ValueError("Basilisk is not installed: pip install 'adfusion[bsk]'") from None
-    if args.duration is not None and not args.duration > 0:
-        raise ValueError("--duration must be positive")
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise UsageError("--duration must be a finite number > 0")
+    from adfusion.basilisk.scenarios import SCENARIOS
+
+    if args.scenario not in SCENARIOS:
+        raise UsageError(f"unknown scenario {args.scenario!r}; choose one of "
+                         f"{sorted(SCENARIOS)}")
     t0 = time.perf_counter()
     rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
                   images=args.images)

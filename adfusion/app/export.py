@@ -37,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from adfusion.app.errors import UsageError
 from adfusion.logs import McapLogReader, topics
 from adfusion.logs.writer import utc_ns
 from adfusion.starid import rotations as rot
@@ -84,7 +85,7 @@ def read_attitude_history(path: str | os.PathLike[str], *,
             modes[m.payload["t"]] = m.payload.get("mode") or ""
             stars[m.payload["t"]] = int(m.payload.get("n_stars", 0))
     if not t:
-        raise ValueError(f"{path}: no {state} messages: is it a replayed log? (adfusion "
+        raise UsageError(f"{path}: no {state} messages: is it a replayed log? (adfusion "
                          "replay INPUT -o OUT.mcap)")
     order = np.argsort(t, kind="stable")
     t_a = np.asarray(t, dtype=float)[order]

@@ -37,10 +37,11 @@ from pathlib import Path
 
 import numpy as np
 
+from adfusion.app.errors import UsageError
 from adfusion.logs import McapLogReader, topics
 from adfusion.starid import rotations as rot
 
-__all__ = ["report"]
+__all__ = ["log_problems", "report"]
 
 _CHI2_3 = (0.2157952826, 9.3484036045)  # χ²(3) 2.5 % and 97.5 % points
 _WINDOW = 20  # frames in the NIS running mean
@@ -77,7 +78,7 @@ class _Log:
             elif m.topic == topics.ESTIMATE_ERROR:
                 err.append(m.payload)
         if not est:
-            raise ValueError(f"{path}: no {topics.ESTIMATE_STATE} messages, nothing to report: "
+            raise UsageError(f"{path}: no {topics.ESTIMATE_STATE} messages, nothing to report: "
                              "replay the log first (adfusion replay INPUT -o OUT.mcap)")
         self.t = np.array([p["t"] for p in est], dtype=float)
         self.q = np.array([p["q_body_icrs"] for p in est], dtype=float)
@@ -117,8 +118,9 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
         _attitude_error(log, out, lines), _nis(log, out, lines), _stars(log, out, lines),
         _residuals(log, out, lines), _solve_time(log, out, lines), _bias(log, out, lines),
         _track(log, out)]
-    if log.reader.problem is not None:
-        lines.append(f"input problem: {log.reader.problem}")
+    # damage found reading the log, the run's input problems and dropped counts, an
+    # incomplete run, the defaults it assumed
+    lines += [f"problem: {p}" for p in log_problems(log.reader)]
     name = Path(log_path).name
     md = out / "summary.md"
     md.write_text("\n".join([f"# Replay report: {name}", ""] + [f"- {x}" for x in lines]
@@ -136,6 +138,25 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
         f"</style></head><body><h1>Replay report: {html.escape(name)}</h1><ul>"
         + "".join(f"<li>{html.escape(x)}</li>" for x in lines) + f"</ul>{figs}</body></html>")
     return [*files, md, page]
+
+
+def log_problems(reader: McapLogReader) -> list[str]:
+    """What a replayed log says went wrong: damage found reading it, the run's input
+    problems and dropped counts (``problems`` metadata), an ``incomplete`` run, and the
+    defaults it assumed (``assumptions``)."""
+    out = [f"reading this log: {p}" for p in reader.problems]
+    inc = reader.metadata.get("incomplete")
+    if isinstance(inc, dict):
+        out.append(f"INCOMPLETE run: {inc.get('reason', '?')} "
+                   f"({inc.get('messages_written', '?')} messages written)")
+    probs = reader.metadata.get("problems")
+    if isinstance(probs, dict):
+        out += [f"input: {p}" for p in probs.get("input", []) if isinstance(p, str)]
+    assumed = reader.metadata.get("assumptions")
+    if isinstance(assumed, dict) and assumed:
+        out.append("assumed (the input had no configuration): " + ", ".join(
+            f"{k} = {v}" for k, v in assumed.items()))
+    return out
 
 
 def _save(fig, path: Path) -> Path:

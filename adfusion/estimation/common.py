@@ -21,7 +21,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["check_dt_omega", "phi_rows", "series_coeffs", "symmetrize", "tangent_basis"]
+__all__ = ["check_dt_omega", "phi_rows", "series_coeffs", "symmetrize", "tangent_basis",
+           "tangent_residual"]
 
 Array = NDArray[np.float64]
 
@@ -106,6 +107,31 @@ def tangent_basis(
     s = 1.0 / math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
     e1x, e1y, e1z = e1[0] * s, e1[1] * s, e1[2] * s
     return (e1x, e1y, e1z), (py * e1z - pz * e1y, pz * e1x - px * e1z, px * e1y - py * e1x)
+
+
+def tangent_residual(
+    e1: tuple[float, float, float], e2: tuple[float, float, float],
+    p: tuple[float, float, float], b: tuple[float, float, float],
+) -> tuple[float, float]:  # fmt: skip
+    """Residual of the unit direction ``b`` against the prediction ``p`` in the tangent basis
+    (e1, e2) of ``p``: the log map, so its length is the angle between them.
+
+    Why not the plain projections (e1·b, e2·b): they are sin θ long, which is 0 again at
+    180° — an exactly reversed vector (a magnetometer of flipped polarity) would pass with
+    NIS 0. At θ = π the direction is undefined; any one of length π says "180° off".
+
+    >>> e1, e2 = tangent_basis(0.0, 0.0, 1.0)
+    >>> [round(abs(v), 6) for v in tangent_residual(e1, e2, (0.0, 0.0, 1.0), (0.0, 0.0, -1.0))]
+    [3.141593, 0.0]
+    """
+    y0 = e1[0] * b[0] + e1[1] * b[1] + e1[2] * b[2]
+    y1 = e2[0] * b[0] + e2[1] * b[1] + e2[2] * b[2]
+    sin_t = math.hypot(y0, y1)
+    cos_t = p[0] * b[0] + p[1] * b[1] + p[2] * b[2]
+    if sin_t < 1e-12:
+        return (y0, y1) if cos_t > 0.0 else (math.pi, 0.0)
+    scale = math.atan2(sin_t, cos_t) / sin_t
+    return y0 * scale, y1 * scale
 
 
 def symmetrize(p: Array) -> Array:

@@ -61,6 +61,7 @@ class StepRecord:
     cone_deg: float | None = None
     nis: dict[str, float] = field(default_factory=dict)
     rejected: list[tuple[str, str]] = field(default_factory=list)  # (input, reason)
+    reinitialized: bool = False  # the filter was restarted from this step's star fix
     solution: Solution | None = None
     detections_xy: NDArray[np.float64] | None = None  # the frame's detections (pixels)
 
@@ -100,6 +101,16 @@ class Estimator:
             so the solver trusts streaked stars only across their streaks and reports
             the larger along-streak uncertainty (:class:`starid.Prior`); a step may
             override it (``step(..., exposure_s=...)``).
+        gyro_max_rate_rad_s: a gyro sample faster than this (any axis norm) is refused as
+            a glitch (default 35 rad/s ≈ 2000°/s, a common MEMS full scale).
+        gyro_max_accel_rad_s2: a sample that differs from the last accepted one by more
+            than this × the time between them (plus 8 noise σ from ``arw_rad_sqrt_s``) is
+            refused as a glitch. One 100 rad/s sample of 5 ms otherwise turns the estimate
+            28° and the gate then rejects every correct fix.
+        reinit_after_fixes: that many lost-in-space fixes in a row, each rejected by the
+            gate and agreeing with the one before on the filter's error (within
+            ``reinit_agree_deg``), restart the filter from the last of them (recorded as
+            ``StepRecord.reinitialized`` with the reason in ``rejected``). 0 disables.
     """
 
     def __init__(
@@ -123,7 +134,25 @@ class Estimator:
         rate_walk_rad_s_sqrt_s: float = 0.025,
         sigma_rate0_rad_s: float = 5.0,
         exposure_s: float | None = None,
+        gyro_max_rate_rad_s: float = 35.0,
+        gyro_max_accel_rad_s2: float = 100.0,
+        reinit_after_fixes: int = 3,
+        reinit_agree_deg: float = 1.0,
     ) -> None:
+        for name, value in (("gyro_max_rate_rad_s", gyro_max_rate_rad_s),
+                            ("gyro_max_accel_rad_s2", gyro_max_accel_rad_s2),
+                            ("reinit_agree_deg", reinit_agree_deg)):
+            if not value > 0:  # inf allowed: no check
+                raise ValueError(f"{name} must be > 0, got {value}")
+        if not (isinstance(reinit_after_fixes, int | np.integer) and reinit_after_fixes >= 0):
+            raise ValueError(f"reinit_after_fixes must be an integer ≥ 0, got "
+                             f"{reinit_after_fixes!r}")
+        self.gyro_max_rate = float(gyro_max_rate_rad_s)
+        self.gyro_max_accel = float(gyro_max_accel_rad_s2)
+        self.reinit_after = int(reinit_after_fixes)
+        self.reinit_agree_rad = float(np.radians(reinit_agree_deg))
+        self._gyro_last: tuple[float, NDArray[np.float64]] | None = None  # (t, ω) accepted
+        self._lis_rejects: list[NDArray[np.float64]] = []  # fix ⊗ filter⁻¹ of rejected fixes
         if exposure_s is not None and not (np.isfinite(exposure_s) and exposure_s >= 0):
             raise ValueError(f"exposure_s must be a finite duration ≥ 0, got {exposure_s}")
         self.exposure_s = None if exposure_s is None else float(exposure_s)
@@ -211,10 +240,26 @@ class Estimator:
         ``exposure_s`` overrides the estimator's exposure for this frame; ``camera`` is the
         index of the camera that took it (:meth:`add_camera`).
         """
-        rec = StepRecord(t=float(t), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
+        try:
+            t = float(t)
+        except (TypeError, ValueError):
+            rec = StepRecord(t=float("nan"), q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
+            rec.rejected.append(("time", f"not a number: {t!r}; all inputs of this step "
+                                         "ignored"))
+            return self._finish(rec)
+        rec = StepRecord(t=t, q_body_icrs=None, bias_rad_s=None, sigma_rad=None)
         if not np.isfinite(t):
             rec.rejected.append(("time", f"non-finite time {t}"))
             return self._finish(rec)
+        if exposure_s is not None:
+            try:
+                exposure_s = float(exposure_s)
+            except (TypeError, ValueError):
+                exposure_s = float("nan")
+            if not (np.isfinite(exposure_s) and exposure_s >= 0):
+                rec.rejected.append(("camera", f"exposure_s must be a finite duration ≥ 0, "
+                                               f"got {exposure_s}; the frame is ignored"))
+                frame = detections = None
         if self.t is not None and t < self.t:
             rec.rejected.append(("time", f"time went backwards ({t} < {self.t}); "
                                          "all inputs of this step ignored"))
@@ -223,12 +268,21 @@ class Estimator:
         if gyro is not None and self.video_only:
             rec.rejected.append(("gyro", "video-only estimator: gyro samples are ignored"))
         elif gyro is not None:
-            g = np.asarray(gyro, dtype=np.float64).reshape(-1)
-            if g.shape != (3,) or not np.all(np.isfinite(g)):
-                rec.rejected.append(("gyro", f"not a finite 3-vector: {g.tolist()}"))
+            try:
+                g = np.asarray(gyro, dtype=np.float64).reshape(-1)
+            except (TypeError, ValueError):
+                g = None
+            if g is None or g.shape != (3,) or not np.all(np.isfinite(g)):
+                shown = repr(gyro) if g is None else g.tolist()
+                rec.rejected.append(("gyro", f"not a finite 3-vector: {shown}"))
             else:
-                self._omega_hold = g
-                rec.sensors.append("gyro")
+                glitch = self._gyro_glitch(float(t), g)
+                if glitch:
+                    rec.rejected.append(("gyro", glitch))
+                else:
+                    self._omega_hold = g
+                    self._gyro_last = (float(t), g)
+                    rec.sensors.append("gyro")
         if frame is not None or detections is not None:
             self._use_camera(camera)
             try:
@@ -284,6 +338,26 @@ class Estimator:
 
     # --- pieces ---------------------------------------------------------------------------
 
+    def _gyro_glitch(self, t: float, g: NDArray[np.float64]) -> str:
+        """Why the sample ``g`` at ``t`` is implausible, or "" if it is not."""
+        rate = float(np.linalg.norm(g))
+        if rate > self.gyro_max_rate:
+            return (f"glitch: |ω| = {rate:.3g} rad/s exceeds gyro_max_rate_rad_s = "
+                    f"{self.gyro_max_rate:g}; sample ignored")
+        if self._gyro_last is None or not np.isfinite(self.gyro_max_accel):
+            return ""
+        t0, g0 = self._gyro_last
+        dt = max(t - t0, 0.0)
+        step = float(np.linalg.norm(g - g0))
+        noise = 8.0 * self.arw / np.sqrt(dt) if dt > 0 else np.inf
+        allowed = self.gyro_max_accel * dt + (noise if np.isfinite(noise) else 0.0)
+        if dt == 0.0:
+            allowed = self.gyro_max_accel * 1e-3  # a repeated time: allow a ms of change
+        if step > allowed:
+            return (f"glitch: ω changed by {step:.3g} rad/s in {dt:.3g} s (more than "
+                    f"gyro_max_accel_rad_s2 = {self.gyro_max_accel:g} allows); sample ignored")
+        return ""
+
     def _propagate_to(self, t: float, rec: StepRecord) -> None:
         if self.t is not None and self.filter is not None and t > self.t:
             if self._omega_hold is not None and not self.video_only:
@@ -304,7 +378,7 @@ class Estimator:
                 detect = starid.detect
             try:
                 detections = detect(frame, self.solver.camera)
-            except (ValueError, FileNotFoundError) as e:
+            except (ValueError, TypeError, FileNotFoundError) as e:
                 rec.rejected.append(("camera", f"detection failed: {e}"))
                 return
         rec.sensors.append("camera")
@@ -322,7 +396,7 @@ class Estimator:
             prior = Prior(q_cam_icrs, sigma, smear_cam_rad=self._smear(exposure_s))
         try:
             sol = self.solver.solve(detections, prior=prior)
-        except ValueError as e:
+        except (ValueError, TypeError) as e:
             rec.rejected.append(("camera", f"bad detections: {e}"))
             self.misses += 1
             return
@@ -348,6 +422,7 @@ class Estimator:
         if res.accepted:
             rec.fix_accepted = True
             self.misses = 0
+            self._lis_rejects = []
         elif self._omega_hold is None and sol.mode == "lost-in-space":
             # no gyro has ever been seen: the filter cannot predict a moving body, so a
             # verified lost-in-space fix restarts it (a rate-estimating video-only model
@@ -362,6 +437,30 @@ class Estimator:
             rec.rejected.append(("star fix", f"{sol.mode} fix rejected by the filter gate: "
                                              f"{res.reason}"))
             self.misses += 1
+            if sol.mode == "lost-in-space" and self._consistent_rejects(q_body_icrs):
+                sigma0 = float(np.sqrt(np.max(np.linalg.eigvalsh(cov_body))))
+                off = float(np.degrees(rot.angle_between(self._lis_rejects[-1], rot.IDENTITY)))
+                self.filter = self._make_filter(q_body_icrs, max(sigma0, 1e-7))
+                rec.fix_accepted = True
+                rec.reinitialized = True
+                rec.rejected.append(("filter", f"re-initialised from a lost-in-space fix: "
+                                     f"{len(self._lis_rejects)} in a row agreed with each "
+                                     f"other and put the filter {off:.3g}° off"))
+                self._lis_rejects = []
+                self.misses = 0
+
+    def _consistent_rejects(self, q_fix_body_icrs: NDArray) -> bool:
+        """Note a gate-rejected lost-in-space fix; ``True`` once ``reinit_after`` of them in a
+        row saw the same filter error (a wrong identification does not repeat itself; a
+        filter knocked off by a fault shows the same offset to every correct fix)."""
+        if self.reinit_after == 0:
+            return False
+        err = rot.multiply(q_fix_body_icrs, rot.inverse(self.filter.q_body_icrs))
+        if self._lis_rejects and (float(rot.angle_between(err, self._lis_rejects[-1]))
+                                  > self.reinit_agree_rad):
+            self._lis_rejects = []
+        self._lis_rejects.append(err)
+        return len(self._lis_rejects) >= self.reinit_after
 
     def _smear(self, exposure_s: float | None) -> NDArray[np.float64] | None:
         """The camera's rotation during the exposure (rad, camera axes) from the rate

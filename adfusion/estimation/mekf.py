@@ -71,6 +71,7 @@ from adfusion.estimation.common import (
     phi_rows,
     symmetrize,
     tangent_basis,
+    tangent_residual,
 )
 from adfusion.starid import rotations as rot
 
@@ -339,6 +340,8 @@ class AttitudeFilter:
     def search_cone_deg(self, k: float = 3.0) -> float:
         """k·σ of the attitude in degrees: ``k·sqrt(λmax(P[:3, :3]))`` — the radius of the
         cone a tracking star identification has to search around the predicted boresight."""
+        if not (math.isfinite(k) and k >= 0):
+            raise ValueError(f"search_cone_deg: k (sigmas) must be finite and ≥ 0, got {k}")
         lam = float(np.linalg.eigvalsh(self._cov()[:3, :3])[-1])
         return k * math.degrees(math.sqrt(max(lam, 0.0)))
 
@@ -533,9 +536,9 @@ class MEKF(AttitudeFilter):
     ) -> UpdateResult:
         px, py, pz = rot.rotate_floats(self._q, rr)  # predicted direction b̂ = R(q̂) r
         (e1x, e1y, e1z), (e2x, e2y, e2z) = tangent_basis(px, py, pz)
-        # b = Exp(δθ) b̂ ≈ b̂ + δθ × b̂, so e1·b = δθ·e2 and e2·b = −δθ·e1 (b̂ × e2 = −e1)
-        y0 = e1x * bm[0] + e1y * bm[1] + e1z * bm[2]
-        y1 = e2x * bm[0] + e2y * bm[1] + e2z * bm[2]
+        # b = Exp(δθ) b̂ ≈ b̂ + δθ × b̂, so e1·b = δθ·e2 and e2·b = −δθ·e1 (b̂ × e2 = −e1);
+        # taken through the log map, so that the residual's length is the angle (to 180°)
+        y0, y1 = tangent_residual((e1x, e1y, e1z), (e2x, e2y, e2z), (px, py, pz), bm)
         h = self._h  # H (2×6); the bias columns stay zero
         h[0, 0], h[0, 1], h[0, 2], h[1, 0], h[1, 1], h[1, 2] = e2x, e2y, e2z, -e1x, -e1y, -e1z
         p = self._P
@@ -585,7 +588,7 @@ class MEKF(AttitudeFilter):
             q_i = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(*dx[:3].tolist()), q_bar))
             px, py, pz = rot.rotate_floats(q_i, rr)
             e1, e2 = tangent_basis(px, py, pz)
-            y = np.array([np.dot(e1, bm), np.dot(e2, bm)])
+            y = np.array(tangent_residual(e1, e2, (px, py, pz), bm))
             h = np.zeros((2, 6))
             h[:, :3] = np.array([e2, [-e1[0], -e1[1], -e1[2]]]) @ jl
             k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r * np.eye(2))

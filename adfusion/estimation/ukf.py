@@ -44,7 +44,12 @@ import numpy as np
 from filterpy.kalman import JulierSigmaPoints, UnscentedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.estimation.common import check_dt_omega, symmetrize, tangent_basis
+from adfusion.estimation.common import (
+    check_dt_omega,
+    symmetrize,
+    tangent_basis,
+    tangent_residual,
+)
 from adfusion.estimation.mekf import AttitudeFilter, UpdateResult, process_noise
 from adfusion.starid import rotations as rot
 
@@ -123,11 +128,13 @@ def _fx(
 def _hx_vector(
     s: Array, q_ref: tuple[float, ...], r: tuple[float, float, float],
     e1: tuple[float, float, float], e2: tuple[float, float, float],
+    p: tuple[float, float, float],
 ) -> Array:  # fmt: skip
-    """Predicted direction of one sigma point, in the tangent basis (e1, e2) of the mean."""
+    """Predicted direction of one sigma point, in the tangent basis (e1, e2) of the mean's
+    prediction ``p`` (through the log map, as the measurement)."""
     px, py, pz = s[:3].tolist()
-    bx, by, bz = rot.rotate_floats(rot.hamilton(_grp_to_quat_f(px, py, pz), q_ref), r)
-    return np.array([e1[0] * bx + e1[1] * by + e1[2] * bz, e2[0] * bx + e2[1] * by + e2[2] * bz])
+    b = rot.rotate_floats(rot.hamilton(_grp_to_quat_f(px, py, pz), q_ref), r)
+    return np.array(tangent_residual(e1, e2, p, b))
 
 
 def _hx_attitude(s: Array) -> Array:
@@ -212,11 +219,11 @@ class UKF(AttitudeFilter):
     def _vector_update(
         self, bm: tuple[float, float, float], rr: tuple[float, float, float], sigma: float
     ) -> UpdateResult:
-        e1, e2 = tangent_basis(*rot.rotate_floats(self._q, rr))
-        z = np.array([e1[0] * bm[0] + e1[1] * bm[1] + e1[2] * bm[2],
-                      e2[0] * bm[0] + e2[1] * bm[1] + e2[2] * bm[2]])  # fmt: skip
+        p = rot.rotate_floats(self._q, rr)
+        e1, e2 = tangent_basis(*p)
+        z = np.array(tangent_residual(e1, e2, p, bm))  # its length is the angle, to 180°
         return self._ut_update(z, (sigma * sigma) * self._R2, 2, _hx_vector,
-                               {"q_ref": self._q, "r": rr, "e1": e1, "e2": e2})  # fmt: skip
+                               {"q_ref": self._q, "r": rr, "e1": e1, "e2": e2, "p": p})
 
     def _attitude_update(self, qm: tuple[float, ...], cov: Array) -> UpdateResult:
         w, x, y, z = self._q

@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -27,9 +28,16 @@ from typing import Any
 import numpy as np
 
 from adfusion.app.detect_worker import keep_freed_memory
+from adfusion.app.errors import UsageError
 from adfusion.app.replay.sinks import LogSink, ReplaySummary, SmootherSink, SummarySink
 from adfusion.app.replay.sources import Source
-from adfusion.app.replay.stages import DetectAhead, EstimationStage, Step, TruthStage
+from adfusion.app.replay.stages import (
+    DetectAhead,
+    EstimationStage,
+    InputProblems,
+    Step,
+    TruthStage,
+)
 from adfusion.estimation.estimator import Estimator
 from adfusion.logs import topics
 from adfusion.starid import rotations as rot
@@ -37,7 +45,15 @@ from adfusion.starid.camera import Camera
 from adfusion.starid.catalog import Catalog
 from adfusion.starid.solver import Solver
 
-__all__ = ["ReplayOptions", "Run", "replay", "run"]
+__all__ = ["DEFAULT_ASSUMPTIONS", "ReplayOptions", "Run", "replay", "run"]
+
+#: What a replay assumes for a log without ``config`` metadata when asked to
+#: (``assume_defaults=True``, ``adfusion replay --assume-defaults``); recorded in the output.
+DEFAULT_ASSUMPTIONS = {
+    "q_body_cam": [1.0, 0.0, 0.0, 0.0],  # camera axes = body axes
+    "gyro": {"arw_rad_sqrt_s": 1e-4, "rrw_rad_s_sqrt_s": 1e-6},
+    "mag_limit": 5.5,
+}
 
 
 @dataclass
@@ -69,6 +85,8 @@ class ReplayOptions:
     arw_rad_sqrt_s: float | None = None
     rrw_rad_s_sqrt_s: float | None = None
     heads: list[int] | None = None
+    config: dict[str, Any] | None = None  # the run configuration, when the input lacks it
+    assume_defaults: bool = False  # no configuration at all: DEFAULT_ASSUMPTIONS, recorded
 
 
 @dataclass
@@ -97,6 +115,17 @@ class Run:
     options: ReplayOptions
     start_utc: str | None = None
     heads: list[Head] = field(default_factory=list)  # every camera replayed, primary first
+    problems: InputProblems = field(default_factory=InputProblems)
+    truth: TruthStage = field(default_factory=TruthStage)
+    assumptions: dict[str, Any] = field(default_factory=dict)
+
+    def problem_lines(self) -> list[str]:
+        """Every problem of the run so far: the input's damage, then the dropped inputs."""
+        found = getattr(self.source, "problems", None)
+        if found is None:
+            one = self.source.problem
+            found = [] if one is None else [one]
+        return list(found) + self.problems.lines()
 
     @property
     def replay_metadata(self) -> dict[str, Any]:
@@ -104,25 +133,79 @@ class Run:
                 "use_mag": self.options.use_mag, "catalog_mag_limit": self.catalog_mag_limit}
 
 
+def _section(config: dict[str, Any], key: str, name: str) -> dict[str, Any]:
+    value = config.get(key, {})
+    if not isinstance(value, dict):
+        raise ValueError(f"{name}: config.{key} is a {type(value).__name__}, not an object")
+    return value
+
+
+def _number(section: dict[str, Any], key: str, default: float | None, where: str,
+            name: str) -> float | None:
+    value = section.get(key, default)
+    if value is None:
+        return None
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        out = float("nan")
+    if not np.isfinite(out):
+        raise ValueError(f"{name}: {where}{key} = {value!r} is not a finite number")
+    return out
+
+
+def _configuration(source: Source, options: ReplayOptions) -> tuple[dict, dict]:
+    """The run configuration and what was assumed in its place (recorded in the output).
+
+    Without one a replay would use an identity camera mount and default noise silently —
+    2° off with a 3σ of 0.14° on a log whose camera is mounted otherwise — so a log with
+    gyro or magnetometer data and no mounting is an error unless the user gives it
+    (``--mount``, ``--config``) or asks for the defaults (``--assume-defaults``). Frames
+    alone (a folder or a video without ``--imu``) need no mounting: the body frame is then
+    the camera's, a definition rather than an assumption."""
+    if options.config is not None:
+        config = dict(options.config)
+    else:
+        config = source.config
+        if not isinstance(config, dict):
+            raise ValueError(f"{source.name}: the config metadata is not an object")
+    if options.q_body_cam is not None or "q_body_cam" in config:
+        return config, {}
+    if not getattr(source, "has_gyro", False) and not getattr(source, "has_mag", False):
+        return {**config, "q_body_cam": [1.0, 0.0, 0.0, 0.0]}, {}
+    if options.assume_defaults:
+        assumed = {k: v for k, v in DEFAULT_ASSUMPTIONS.items() if k not in config}
+        return {**DEFAULT_ASSUMPTIONS, **config}, assumed
+    what = "no 'config' metadata" if not config else "no q_body_cam in its config metadata"
+    raise ValueError(f"{source.name}: {what} (the camera mounting and sensor noise): give "
+                     "--mount w,x,y,z or --config FILE.json, or --assume-defaults to replay "
+                     "with an identity mounting and default noise (recorded in the output)")
+
+
 def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     """Camera, catalogue, solver and estimator from the input's model and configuration."""
-    config = source.config
+    name = source.name
+    config, assumed = _configuration(source, options)
     camera = _camera(source, options)
     model = camera.to_dict()
-    mount = options.q_body_cam if options.q_body_cam is not None else config.get("q_body_cam")
-    q_body_cam = np.asarray(rot.IDENTITY if mount is None else mount, dtype=np.float64)
-    if q_body_cam.shape != (4,) or not np.all(np.isfinite(q_body_cam)) or not np.any(q_body_cam):
-        raise ValueError(f"mounting {q_body_cam.tolist()}: give --mount as a quaternion "
-                         "q_body_cam 'w,x,y,z'")
-    if options.q_body_cam is not None:
-        q_body_cam = rot.normalize(q_body_cam)
+    mount = options.q_body_cam if options.q_body_cam is not None else config["q_body_cam"]
+    try:
+        q_body_cam = np.asarray(mount, dtype=np.float64).reshape(4)
+    except (TypeError, ValueError):
+        q_body_cam = np.zeros(4)
+    if not np.all(np.isfinite(q_body_cam)) or not np.any(q_body_cam):
+        raise UsageError(f"mounting {mount!r}: give --mount as a quaternion q_body_cam "
+                         "'w,x,y,z' (or config.q_body_cam)")
+    q_body_cam = rot.normalize(q_body_cam)
+    catalog_cfg = _section(config, "catalog", name)
+    cam_cfg = _section(config, "camera", name)
+    gyro_cfg = _section(config, "gyro", name)
     epoch = float(options.epoch if options.epoch is not None
-                  else config.get("catalog", {}).get("epoch", 2000.0))
+                  else _number(catalog_cfg, "epoch", 2000.0, "config.catalog.", name))
     limit = (options.mag_limit if options.mag_limit is not None
-             else float(config.get("mag_limit", 5.5)))
+             else _number(config, "mag_limit", 5.5, "config.", name))
     catalog = Catalog.hipparcos(mag_limit=limit, epoch=epoch)
-    gyro_cfg = config.get("gyro", {})
-    sigma_px = float(config.get("camera", {}).get("centroid_sigma_px", 0.5))
+    sigma_px = _number(cam_cfg, "centroid_sigma_px", 0.5, "config.camera.", name)
     extra = {"fov_error_deg": options.fov_error_deg} if options.fov_error_deg else {}
     solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5), **extra)
     solver.warm_up()  # its compiled search loads (or, once after an install, compiles) here
@@ -131,21 +214,22 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
         ahead.detect_kwargs = {"sigma": float(options.sigma)}
     # the exposure lets tracking model motion smear (long streaks that break into pieces)
     exposure = (options.exposure_s if options.exposure_s is not None
-                else config.get("camera", {}).get("exposure_s"))
+                else _number(cam_cfg, "exposure_s", None, "config.camera.", name))
     arw = (options.arw_rad_sqrt_s if options.arw_rad_sqrt_s is not None
-           else gyro_cfg.get("arw_rad_sqrt_s", 1e-4))
+           else _number(gyro_cfg, "arw_rad_sqrt_s", 1e-4, "config.gyro.", name))
     rrw = (options.rrw_rad_s_sqrt_s if options.rrw_rad_s_sqrt_s is not None
-           else gyro_cfg.get("rrw_rad_s_sqrt_s", 1e-6))
+           else _number(gyro_cfg, "rrw_rad_s_sqrt_s", 1e-6, "config.gyro.", name))
     est = Estimator(solver, q_body_cam, arw_rad_sqrt_s=float(arw), rrw_rad_s_sqrt_s=float(rrw),
                     video_only=not options.use_gyro, detect=ahead,
                     exposure_s=None if exposure is None else float(exposure))
     start = options.start_utc or getattr(source, "start_utc", None) or config.get("start_utc")
-    r = Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start)
+    r = Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start,
+            assumptions=assumed)
     r.heads = [Head(0, camera, q_body_cam, solver)]
     n_heads = len(config.get("heads", [])) or 1
     selected = list(range(n_heads)) if options.heads is None else list(options.heads)
     if any(not 0 <= k < n_heads for k in selected) or not selected:
-        raise ValueError(f"--heads {selected}: the log has cameras 0..{n_heads - 1}")
+        raise UsageError(f"--heads {selected}: the log has cameras 0..{n_heads - 1}")
     if selected != [0]:
         models = source.camera_models()
         r.heads = []
@@ -174,17 +258,25 @@ def _camera(source: Source, options: ReplayOptions) -> Camera:
     if options.camera is not None:
         camera = options.camera
     elif (model := source.camera_model()) is not None:
-        camera = Camera.from_dict(model)
+        try:
+            camera = Camera.from_dict(model)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise ValueError(f"{source.name}: the camera model (camera.json) is unusable: "
+                             f"{type(exc).__name__}: {exc}") from None
     elif options.fov_deg is not None:
         size = source.image_size()
         if size is None:
             raise ValueError(f"{source.name}: no frames to take the image size from")
         if not 0 < options.fov_deg < 180:
-            raise ValueError(f"--fov {options.fov_deg}: a horizontal field of view in degrees,"
+            raise UsageError(f"--fov {options.fov_deg}: a horizontal field of view in degrees,"
                              " between 0 and 180")
         camera = Camera.pinhole(size[0], size[1], float(options.fov_deg))
     else:
-        raise ValueError(f"{source.name}: no camera model in the input: give --camera FILE "
+        damaged = [p for p in getattr(source, "problems", []) or [] if "camera" in p]
+        if damaged:  # the input had one, damaged or changed since: an input problem
+            raise ValueError(f"{source.name}: no camera model in the input ({damaged[0]}); "
+                             "give --camera FILE to replay it")
+        raise UsageError(f"{source.name}: no camera model in the input: give --camera FILE "
                          "(OpenCV or ROS camera_info YAML, or camera.json) or --fov DEG")
     size = source.image_size()
     if size is not None and tuple(size) != (camera.width, camera.height):
@@ -207,11 +299,14 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
         ahead.start()
     try:
         r = _build(source, options, ahead)
-        stages = (TruthStage(), EstimationStage(
+        r.truth = TruthStage(r.problems)
+        stages = (r.truth, EstimationStage(
             r.estimator, use_gyro=options.use_gyro, use_mag=options.use_mag,
-            cameras={h.index: i for i, h in enumerate(r.heads)}))
+            cameras={h.index: i for i, h in enumerate(r.heads)}, problems=r.problems,
+            sizes={i: (h.camera.width, h.camera.height) for i, h in enumerate(r.heads)}))
         messages = ahead.read(source if not progress else _progress(source))
         opened: list[Any] = []
+        failure: BaseException | None = None
         try:
             for sink in sinks:
                 sink.open(r)
@@ -223,9 +318,18 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
                     stage(step)
                 for take in takes:
                     take(step)
+        except BaseException as exc:  # Ctrl-C too: the output says it is incomplete
+            failure = exc
+            raise
         finally:
+            reason = None if failure is None else (
+                f"{type(failure).__name__}: {failure}" if str(failure)
+                else type(failure).__name__)
             for sink in reversed(opened):
-                sink.close()
+                if reason is not None and hasattr(sink, "abort"):
+                    sink.abort(reason)
+                elif reason is None:
+                    sink.close()
         return r
     finally:
         if own:
@@ -245,6 +349,8 @@ def replay(
     compression: str = "auto",
     options: ReplayOptions | None = None,
     layout: bool = True,
+    config: dict[str, Any] | None = None,
+    assume_defaults: bool = False,
     **input_args: Any,
 ) -> ReplaySummary:
     """Replay ``in_path`` through detection → identification → filter into ``out_path``.
@@ -273,15 +379,28 @@ def replay(
     (smallest) and ``"none"`` choose explicitly. ``layout=True`` writes a Foxglove layout
     beside the output (``OUT.layout.json``, :class:`~adfusion.app.replay.sinks.LayoutSink`).
 
+    ``out_path`` is never the input (the same file by inode: a symlink or ``./X`` too);
+    it is written as ``out_path + ".partial"`` and renamed when complete. A replay stopped
+    by an exception or Ctrl-C leaves it closed and marked ``incomplete`` (metadata). Every
+    input problem and every dropped input is in ``summary.problems`` and in the output's
+    ``problems`` metadata. ``config`` supplies the run configuration for a log without one;
+    ``assume_defaults`` replays such a log with :data:`DEFAULT_ASSUMPTIONS` (recorded as
+    ``assumptions`` metadata) — without either, a log without configuration is an error.
+
     Process-wide side effect: :func:`adfusion.app.detect_worker.keep_freed_memory` (glibc
     keeps freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
     from adfusion.app.replay.sinks import LayoutSink
     from adfusion.app.replay.sources import open_input
 
     t_start = time.perf_counter()
+    _refuse_to_overwrite(in_path, out_path)
     keep_freed_memory()
     if options is None:
         options = ReplayOptions(use_gyro, use_mag, mag_limit)
+    if config is not None:
+        options.config = config
+    if assume_defaults:
+        options.assume_defaults = True
     ahead = DetectAhead()
     ahead.start()
     try:
@@ -302,9 +421,21 @@ def replay(
     finally:
         ahead.close()
     summary.wall_s = time.perf_counter() - t_start
-    if source.problem is not None:
-        summary.problem = source.problem
     return summary
+
+
+def _refuse_to_overwrite(in_path: str | Path, out_path: str | Path) -> None:
+    """The output must not be the input: same file by device and inode (so ``./X``, a
+    symlink or a hard link to X count), or the partial file's name."""
+    if os.path.exists(out_path) and os.path.exists(in_path) and os.path.samefile(in_path,
+                                                                                 out_path):
+        raise ValueError(f"the output {out_path} is the input {in_path}: give another name "
+                         "(a replay never overwrites its input)")
+    partial = str(out_path) + ".partial"
+    if os.path.exists(partial) and os.path.exists(in_path) and os.path.samefile(in_path,
+                                                                                partial):
+        raise ValueError(f"the output's temporary name {partial} is the input: give "
+                         "another output name")
 
 
 def _progress(source):

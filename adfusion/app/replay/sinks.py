@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from adfusion.app.errors import UsageError
 from adfusion.app.replay.stages import FRAME, GYRO, MAG, TRUTH, Step
 from adfusion.estimation.estimator import StepRecord
 from adfusion.logs import LogWriter, Message, topics
@@ -63,7 +64,9 @@ class ReplaySummary:
     sigmas_deg: list[float] = field(default_factory=list)
     wall_s: float = 0.0
     setup_s: float = 0.0  # of wall_s: before the first frame (opening, catalogue, warm-up)
-    problem: str = ""
+    problem: str = ""  # the first of problems (kept for callers of the one-line form)
+    problems: list[str] = field(default_factory=list)  # every input problem, dropped counts
+    dropped: dict[str, int] = field(default_factory=dict)  # input kind → messages dropped
     smoothed_errors_deg: list[float] = field(default_factory=list)
     smoothed_sigmas_deg: list[float] = field(default_factory=list)
     smoother: dict[str, Any] = field(default_factory=dict)  # replay(smooth=True) only
@@ -119,8 +122,8 @@ class ReplaySummary:
                      if self.setup_s > 2.0 else "")
             lines.append(f"{d['frames_per_s']:.1f} frames/s end to end ({self.wall_s:.1f} s"
                          f"{setup})")
-        if self.problem:
-            lines.append(f"input problem: {self.problem}")
+        lines += [f"input problem: {p}" for p in (self.problems or
+                                                  ([self.problem] if self.problem else []))]
         return "\n".join(lines)
 
 
@@ -141,13 +144,18 @@ class LogSink:
         self.estimator = None
         self.multi = False
         self.mounts: list[tuple] = []
+        self.run: Run | None = None
 
     def open(self, run: Run) -> None:
         self.q_body_cam = run.q_body_cam
         self.estimator = run.estimator
+        self.run = run
+        # written under a temporary name, renamed when complete (LogWriter atomic)
         self.log = log = LogWriter(self.path, compression=self.compression,
-                                   start_utc=run.start_utc)
+                                   start_utc=run.start_utc, atomic=True)
         log.add_metadata("replay", run.replay_metadata)
+        if run.assumptions:
+            log.add_metadata("assumptions", run.assumptions)
         if run.config:
             log.add_metadata("config", run.config)
         self.multi = len(run.heads) > 1 or run.heads[0].index != 0
@@ -168,7 +176,7 @@ class LogSink:
 
     def take(self, step: Step) -> None:
         kind, msg = step.kind, step.msg
-        if kind == FRAME:
+        if kind == FRAME and step.record is not None:
             if isinstance(msg.payload, np.ndarray):
                 if msg.raw is not None:  # a foxglove.RawImage: copied as read
                     self.log.write_protobuf_bytes(msg.topic, msg.t_s, "foxglove.RawImage",
@@ -190,9 +198,26 @@ class LogSink:
                 self.log.write_pose(topics.TRUTH_POSE, msg.t_s, q_icrs_body, "icrs")
             self.log.write_tf(msg.t_s, [("icrs", "body_truth", q_icrs_body, (0.0, 0.0, 0.0))])
 
+    def _problems(self) -> None:
+        if self.run is not None:
+            problems = self.run.problem_lines()
+            if problems:
+                self.log.add_metadata("problems", {"input": problems,
+                                                   "dropped": self.run.problems.dropped})
+
     def close(self) -> None:
         if self.log is not None:
+            self._problems()
             self.log.close()
+
+    def abort(self, reason: str) -> None:
+        """The run failed: the output is closed marked ``incomplete`` (reason)."""
+        if self.log is not None:
+            try:
+                self._problems()
+            except OSError:
+                pass
+            self.log.abort(reason)
 
     def _copy(self, msg: Message) -> None:
         """An input message into the output, as read (no decode/encode round trip)."""
@@ -349,11 +374,14 @@ class SummarySink:
             self.summary.setup_s = time.perf_counter() - self.t_start
         self.in_view = InViewCounter(run.solver, run.q_body_cam)
         self.primary = run.heads[0].index if run.heads else 0
+        self.run = run
+        # (t, accepted, q, σ, of the first camera: the batch count knows its view only)
+        self.frames: list[tuple[float, bool, Any, Any, bool]] = []
 
     def take(self, step: Step) -> None:
-        if step.kind != FRAME:
+        if step.kind != FRAME or step.record is None:
             return
-        s, rec, truth_q = self.summary, step.record, step.truth_q
+        s, rec = self.summary, step.record
         s.frames += 1
         sol = rec.solution
         if sol is not None:
@@ -362,17 +390,31 @@ class SummarySink:
             s.identified += 1
         elif sol is not None and sol.ok:
             s.rejected_fixes += 1
-        if truth_q is not None:
-            if step.head == self.primary:  # the batch count knows the first camera's view
-                self.in_view.add(truth_q, rec.fix_accepted)
-            if rec.q_body_icrs is not None:
-                s.errors_deg.append(float(np.degrees(rot.angle_between(rec.q_body_icrs,
-                                                                       truth_q))))
-                s.sigmas_deg.append(float(np.degrees(np.linalg.norm(rec.sigma_rad[:3]))))
+        # scored at close, against the truth interpolated at the estimate's time: the file
+        # order of equal-time truth and frame messages must not change the score
+        sigma = None if rec.sigma_rad is None else float(np.linalg.norm(rec.sigma_rad[:3]))
+        self.frames.append((rec.t, bool(rec.fix_accepted), rec.q_body_icrs, sigma,
+                            step.head == self.primary))
 
     def close(self) -> None:
+        s = self.summary
+        track = self.run.truth.track if self.run is not None else None
+        if track is not None and len(track):
+            for t, accepted, q, sigma, primary in self.frames:
+                truth_q = track.at(t)
+                if truth_q is None:
+                    continue
+                if primary:
+                    self.in_view.add(truth_q, accepted)
+                if q is not None:
+                    s.errors_deg.append(float(np.degrees(rot.angle_between(q, truth_q))))
+                    s.sigmas_deg.append(float(np.degrees(sigma)))
         if self.in_view is not None:
-            self.in_view.count_into(self.summary)
+            self.in_view.count_into(s)
+        if self.run is not None:
+            s.problems = self.run.problem_lines()
+            s.dropped = dict(self.run.problems.dropped)
+            s.problem = s.problems[0] if s.problems else ""
 
 
 class SmootherSink:
@@ -394,9 +436,10 @@ class SmootherSink:
         from adfusion.estimation.smoother import SmootherInput
 
         if len(run.heads) > 1:
-            raise ValueError("--smooth smooths one camera's log: choose one with --heads K")
+            raise UsageError("--smooth smooths one camera's log: choose one with --heads K")
         est = run.estimator
         self.solver = run.solver
+        self.run = run
         self.recording = SmootherInput(run.q_body_cam, arw_rad_sqrt_s=est.arw,
                                        rrw_rad_s_sqrt_s=est.rrw,
                                        sigma_mag_rad=est.sigma_mag_rad,
@@ -412,7 +455,7 @@ class SmootherSink:
             self.recording.add_mag(msg.t_s, msg.payload["b_body"], msg.payload["b_ref_icrs"])
         elif step.kind == FRAME:
             self.recording.add_step(msg.t_s, step.record, self.solver)
-            self.truth_frames.append((msg.t_s, step.truth_q))
+            self.truth_frames.append((msg.t_s, None))
 
     def close(self) -> None:
         """Smooth the recorded log; write ``/smoothed/state`` and ``/smoothed/pose``; score."""
@@ -421,6 +464,8 @@ class SmootherSink:
 
         if self.recording is None:
             return
+        track = self.run.truth.track
+        self.truth_frames = [(t, track.at(t)) for t, _ in self.truth_frames]
         s, log = self.summary, self.log_sink.log
         try:
             res = run_smoother(self.recording, mode=self.mode)

@@ -23,6 +23,7 @@ from typing import Any, Protocol
 import cv2
 import numpy as np
 
+from adfusion.app.errors import UsageError
 from adfusion.logs import (
     ImageFolderSource,
     McapLogReader,
@@ -102,6 +103,11 @@ class McapInput:
     def problem(self) -> str | None:
         return None if self.reader.problem is None else str(self.reader.problem)
 
+    @property
+    def problems(self) -> list[str]:
+        """Every problem the reader found (read after iterating: a chunk failing its CRC
+        is found when reached)."""
+        return [str(p) for p in self.reader.problems]
 
 def _sensors(imu: str | os.PathLike[str] | None, problems: list[str]) -> list[Message]:
     """Gyro/magnetometer samples of a CSV (:func:`adfusion.logs.read_sensor_csv`) or a PX4
@@ -181,10 +187,10 @@ class FolderInput(_FramesInput):
                  imu: str | os.PathLike[str] | None = None) -> None:
         self.name = str(folder)
         if timestamps is None and not fps:
-            raise ValueError(f"{folder}: frame times unknown: give --fps HZ or "
+            raise UsageError(f"{folder}: frame times unknown: give --fps HZ or "
                              "--timestamps CSV (columns filename,t_s)")
         if fps is not None and not fps > 0:
-            raise ValueError(f"--fps {fps}: a frame rate must be positive")
+            raise UsageError(f"--fps {fps}: a frame rate must be positive")
         if timestamps is not None and not os.path.exists(timestamps):
             raise FileNotFoundError(f"--timestamps {timestamps}: no such file")
         try:
@@ -211,12 +217,12 @@ class VideoInput(_FramesInput):
                  imu: str | os.PathLike[str] | None = None) -> None:
         self.name = str(path)
         if fps is not None and not fps > 0:
-            raise ValueError(f"--fps {fps}: a frame rate must be positive")
+            raise UsageError(f"--fps {fps}: a frame rate must be positive")
         try:
             self._source = VideoSource(path, fps=fps)
         except ValueError as e:
             if "frame rate" in str(e):
-                raise ValueError(f"{path}: no frame rate in the container: give --fps HZ") \
+                raise UsageError(f"{path}: no frame rate in the container: give --fps HZ") \
                     from None
             raise
         self.imu = imu
@@ -325,7 +331,7 @@ class Ros2BagInput:
         def pick(names: tuple[str, ...], given: str | None, flag: str) -> str | None:
             if given is not None:
                 if not any(given in by_type.get(n, []) for n in names + tuple(by_type)):
-                    raise ValueError(f"{path}: no topic {given!r} ({flag}); topics: "
+                    raise UsageError(f"{path}: no topic {given!r} ({flag}); topics: "
                                      f"{sorted(t for ts in by_type.values() for t in ts)}")
                 return given
             found = [t for n in names for t in by_type.get(n, [])]
@@ -480,9 +486,18 @@ def open_input(path: str | os.PathLike[str], *, fps: float | None = None,
             return Ros2BagInput(p, image_topic=image_topic, imu_topic=imu_topic,
                                 mag_topic=mag_topic, imu=imu)
         if imu is not None:
-            raise ValueError(f"--imu {imu}: {path} is a log of ours, which holds its sensors")
+            raise UsageError(f"--imu {imu}: {path} is a log of ours, which holds its sensors")
         return McapInput(p)
-    if p.suffix.lower() in VIDEO_SUFFIXES or p.suffix.lower() not in (".csv", ".json", ".yaml"):
+    what = (f"{path}: not an MCAP file, a ROS 2 bag, a folder of images or a video file "
+            "OpenCV can open")
+    with open(p, "rb") as f:
+        if f.read(8) == b"\x89MCAP0\r\n":  # an MCAP log under another name
+            return McapInput(p)
+    if p.suffix.lower() in VIDEO_SUFFIXES:
         return VideoInput(p, fps=fps, imu=imu)
-    raise ValueError(f"{path}: not an input replay reads (an MCAP log or ROS 2 bag, a folder "
-                     "of images, or a video file)")
+    if p.suffix.lower() in (".csv", ".json", ".yaml", ".yml", ".txt"):
+        raise ValueError(what)
+    try:  # an unusual suffix: a video if OpenCV can open it
+        return VideoInput(p, fps=fps, imu=imu)
+    except ValueError:
+        raise ValueError(what) from None

@@ -20,15 +20,18 @@ Example:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import bisect
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.logs import Message, topics
+from adfusion.starid import rotations as rot
 from adfusion.starid.camera import Camera
 
-__all__ = ["DetectAhead", "EstimationStage", "Step", "TruthStage"]
+__all__ = ["DetectAhead", "EstimationStage", "InputProblems", "Step", "TruthStage", "TruthTrack"]
 
 GYRO, MAG, TRUTH, FRAME, OTHER = "gyro", "mag", "truth", "frame", "other"
 _KINDS = {topics.GYRO: (GYRO, 0), topics.MAG: (MAG, 0), topics.TRUTH_STATE: (TRUTH, 0),
@@ -63,15 +66,115 @@ class Step:
         return cls(msg, kind, head=head)
 
 
-class TruthStage:
-    """Keeps the latest ``/truth/state`` attitude and hands it to each frame."""
+@dataclass
+class InputProblems:
+    """Inputs a replay could not use, counted per kind with the first reason, so that a
+    run that dropped whole inputs says so (summary, output log, ``report``).
+
+    >>> p = InputProblems()
+    >>> p.drop("gyro", "not a finite 3-vector: [nan, 0, 0]"); p.drop("gyro", "x")
+    >>> p.lines()
+    ['2 gyro message(s) dropped (first: not a finite 3-vector: [nan, 0, 0])']
+    """
+
+    dropped: dict[str, int] = field(default_factory=dict)
+    first: dict[str, str] = field(default_factory=dict)
+    seen: dict[str, int] = field(default_factory=dict)
+
+    def saw(self, kind: str) -> None:
+        self.seen[kind] = self.seen.get(kind, 0) + 1
+
+    def drop(self, kind: str, reason: str) -> None:
+        self.dropped[kind] = self.dropped.get(kind, 0) + 1
+        self.first.setdefault(kind, reason)
+
+    def lines(self) -> list[str]:
+        out = []
+        for kind, n in self.dropped.items():
+            of = f" of {self.seen[kind]}" if self.seen.get(kind) else ""
+            out.append(f"{n}{of} {kind} message(s) dropped (first: {self.first[kind]})")
+        return out
+
+
+def _field(payload: Any, key: str, topic: str) -> Any:
+    """``payload[key]`` of a JSON message, or a :class:`ValueError` naming the topic."""
+    if not isinstance(payload, dict):
+        raise ValueError(f"{topic}: payload is a {type(payload).__name__}, not an object "
+                         f"with {key!r}")
+    if key not in payload:
+        raise ValueError(f"{topic}: payload has no {key!r} (has {sorted(payload)[:6]})")
+    return payload[key]
+
+
+class TruthTrack:
+    """Truth attitudes by time; :meth:`at` interpolates (slerp) between the two samples
+    around ``t``, so the score of an estimate does not depend on whether the truth of the
+    same instant came before or after the frame in the file.
+
+    >>> tr = TruthTrack()
+    >>> tr.add(0.0, [1.0, 0.0, 0.0, 0.0]); tr.add(2.0, [0.0, 0.0, 0.0, 1.0])
+    >>> [round(float(v), 6) for v in tr.at(1.0)]
+    [0.707107, 0.0, 0.0, 0.707107]
+    >>> tr.at(3.0) is None
+    True
+    """
 
     def __init__(self) -> None:
+        self.t: list[float] = []
+        self.q: list[np.ndarray] = []
+        self._sorted = True
+
+    def add(self, t: float, q: Any) -> None:
+        if self.t and t < self.t[-1]:
+            self._sorted = False
+        self.t.append(float(t))
+        self.q.append(rot.normalize(np.asarray(q, dtype=np.float64)))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def at(self, t: float) -> np.ndarray | None:
+        """The truth at ``t`` (``None`` outside the truth's time span)."""
+        if not self._sorted:
+            order = sorted(range(len(self.t)), key=self.t.__getitem__)
+            self.t = [self.t[i] for i in order]
+            self.q = [self.q[i] for i in order]
+            self._sorted = True
+        if not self.t or t < self.t[0] or t > self.t[-1]:
+            return None
+        i = bisect.bisect_left(self.t, t)
+        if self.t[i] == t:
+            return self.q[i]
+        t0, t1 = self.t[i - 1], self.t[i]
+        q0, q1 = self.q[i - 1], self.q[i]
+        if float(np.dot(q0, q1)) < 0.0:
+            q1 = -q1
+        delta = rot.log_map(rot.multiply(q1, rot.inverse(q0)))
+        return rot.canonical(rot.multiply(rot.exp_map(delta * (t - t0) / (t1 - t0)), q0))
+
+
+class TruthStage:
+    """Collects the ``/truth/state`` attitudes (:attr:`track`, for scoring at the
+    estimates' times) and hands the latest to each frame (``step.truth_q``)."""
+
+    def __init__(self, problems: InputProblems | None = None) -> None:
         self.q: np.ndarray | None = None
+        self.track = TruthTrack()
+        self.problems = problems if problems is not None else InputProblems()
 
     def __call__(self, step: Step) -> None:
         if step.kind == TRUTH:
-            self.q = np.asarray(step.msg.payload["q_body_icrs"], dtype=np.float64)
+            self.problems.saw(TRUTH)
+            try:
+                q = np.asarray(_field(step.msg.payload, "q_body_icrs", step.msg.topic),
+                               dtype=np.float64)
+                q = rot.normalize(q.reshape(4))
+            except (ValueError, TypeError) as exc:
+                self.problems.drop(TRUTH, str(exc))
+                step.kind = OTHER
+                return
+            self.q = q
+            self.track.add(step.msg.t_s, q)
         elif step.kind == FRAME:
             step.truth_q = self.q
 
@@ -82,35 +185,72 @@ class EstimationStage:
     (detected through the estimator's ``detect``) or centroids."""
 
     def __init__(self, estimator: Estimator, *, use_gyro: bool = True,
-                 use_mag: bool = True, cameras: dict[int, int] | None = None) -> None:
+                 use_mag: bool = True, cameras: dict[int, int] | None = None,
+                 problems: InputProblems | None = None,
+                 sizes: dict[int, tuple[int, int]] | None = None) -> None:
         self.est = estimator
         self.use_gyro = use_gyro
         self.use_mag = use_mag
         self.cameras = cameras or {0: 0}  # the input's camera → the estimator's camera
+        self.sizes = sizes or {}  # the estimator's camera → its (width, height)
+        self.problems = problems if problems is not None else InputProblems()
+
+    def _rejected(self, rec: StepRecord, source: str) -> str:
+        return next((why for src, why in rec.rejected if src in (source, "time")), "")
 
     def __call__(self, step: Step) -> None:
         kind, msg = step.kind, step.msg
-        if kind == GYRO:
-            if self.use_gyro:
-                self.est.step(msg.t_s, gyro=msg.payload["omega"])
+        if kind in (GYRO, MAG, FRAME):
+            self.problems.saw(kind)
+        try:
+            if kind == GYRO:
+                if self.use_gyro:
+                    rec = self.est.step(msg.t_s, gyro=_field(msg.payload, "omega", msg.topic))
+                    why = self._rejected(rec, "gyro")
+                    if why:
+                        self.problems.drop(GYRO, why)
+                    step.used = not why
+            elif kind == MAG:
+                p = msg.payload
+                if self.use_mag and isinstance(p, dict) and "b_ref_icrs" in p:
+                    rec = self.est.step(msg.t_s, mag=(_field(p, "b_body", msg.topic),
+                                                      p["b_ref_icrs"]))
+                    why = next((w for src, w in rec.rejected if src == "mag" and
+                                ("non-finite" in w or "expected" in w)), "")
+                    if why:
+                        self.problems.drop(MAG, why)
+                    step.used = not why
+                elif not isinstance(p, dict) or "b_body" not in p:
+                    _field(p, "b_body", msg.topic)
+            elif kind == FRAME:
+                camera = self.cameras.get(step.head)
+                if camera is None:  # a camera left out of this replay
+                    step.kind = OTHER
+                    return
+                if isinstance(msg.payload, np.ndarray) or msg.topic.endswith("/image"):
+                    image = msg.payload
+                    self._check_image(image, msg.topic, self.sizes.get(camera))
+                    step.record = self.est.step(msg.t_s, frame=image, camera=camera)
+                else:
+                    xy = np.asarray(_field(msg.payload, "xy", msg.topic), dtype=np.float64)
+                    step.record = self.est.step(msg.t_s, detections=xy, camera=camera)
+                why = self._rejected(step.record, "camera")
+                if why:
+                    self.problems.drop(FRAME, why)
                 step.used = True
-        elif kind == MAG:
-            p = msg.payload
-            if self.use_mag and "b_ref_icrs" in p:
-                self.est.step(msg.t_s, mag=(p["b_body"], p["b_ref_icrs"]))
-                step.used = True
-        elif kind == FRAME:
-            camera = self.cameras.get(step.head)
-            if camera is None:  # a camera left out of this replay
-                step.kind = OTHER
-            elif isinstance(msg.payload, np.ndarray):
-                step.record = self.est.step(msg.t_s, frame=msg.payload, camera=camera)
-                step.used = True
-            else:
-                step.record = self.est.step(
-                    msg.t_s, detections=np.asarray(msg.payload["xy"], dtype=np.float64),
-                    camera=camera)
-                step.used = True
+        except (ValueError, TypeError) as exc:  # a payload of another tool's making
+            self.problems.drop(kind, str(exc))
+            step.kind, step.used, step.record = OTHER, False, None
+
+    @staticmethod
+    def _check_image(image: Any, topic: str, size: tuple[int, int] | None) -> None:
+        if not isinstance(image, np.ndarray):
+            raise ValueError(f"{topic}: payload is a {type(image).__name__}, not an image")
+        if image.ndim != 2:
+            raise ValueError(f"{topic}: image of shape {image.shape}, not a grey frame")
+        if size is not None and image.shape != (size[1], size[0]):
+            raise ValueError(f"{topic}: frame of {image.shape[1]}×{image.shape[0]} px, but the "
+                             f"camera model is {size[0]}×{size[1]}: a wrong camera model?")
 
 
 class DetectAhead:
