@@ -248,8 +248,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    "gyro_x..z rad/s, mag_x..z nT) or a PX4 ULog (.ulg)")
     g.add_argument("--camera", metavar="FILE", help="camera model: OpenCV camera YAML, ROS "
                    "camera_info YAML, or camera.json")
-    g.add_argument("--fov", type=float, metavar="DEG", help="horizontal field of view (a "
-                   "pinhole camera of the frame size) when there is no camera model")
+    g.add_argument("--fov", metavar="DEG|LO:HI", help="horizontal field of view (a "
+                   "pinhole camera of the frame size) when there is no camera model: degrees "
+                   "or a range LO:HI, searched for lost-in-space")
     g.add_argument("--fps", type=float, help="frame rate of a folder or video (frame i at "
                    "i/fps s)")
     g.add_argument("--timestamps", metavar="CSV", help="frame times of a folder: CSV with "
@@ -280,7 +281,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--fov-error", type=float, default=0.0, metavar="DEG",
                    help="± uncertainty of the field of view for lost-in-space (default 0)")
     g.add_argument("--mag-limit", type=magnitude_limit, default=None,
-                   help="catalogue limit, V (default: the log's, else 5.5)")
+                   help="catalogue limit, V (default: the log's, else 6.5, as solve)")
     g.add_argument("--epoch", type=float, help="catalogue epoch, Julian year (default: the "
                    "log's, else 2000)")
     g = rp.add_argument_group("filter and output")
@@ -894,10 +895,17 @@ def cmd_replay(args: argparse.Namespace) -> int:
             raise ValueError(f"{args.config}: not a JSON file ({exc})") from None
         if not isinstance(config, dict):
             raise ValueError(f"{args.config}: the configuration must be a JSON object")
+    fov_deg, fov_error = None, args.fov_error
+    if args.fov is not None:
+        lo, hi = parse_fov(args.fov)
+        if lo < hi and args.fov_error:
+            raise UsageError("give --fov LO:HI or --fov-error, not both")
+        fov_deg = 0.5 * (lo + hi)
+        fov_error = 0.5 * (hi - lo) if lo < hi else args.fov_error
     options = ReplayOptions(use_gyro=not args.no_gyro, use_mag=not args.no_mag,
-                            mag_limit=args.mag_limit, camera=camera, fov_deg=args.fov,
+                            mag_limit=args.mag_limit, camera=camera, fov_deg=fov_deg,
                             q_body_cam=mount, start_utc=args.start_utc, sigma=args.sigma,
-                            fov_error_deg=args.fov_error, epoch=args.epoch,
+                            fov_error_deg=fov_error, epoch=args.epoch,
                             exposure_s=args.exposure, arw_rad_sqrt_s=args.gyro_arw,
                             rrw_rad_s_sqrt_s=args.gyro_rrw, heads=heads)
     s = replay(args.input, args.output, options=options, progress=sys.stderr.isatty(),

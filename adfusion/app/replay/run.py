@@ -203,7 +203,7 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     epoch = float(options.epoch if options.epoch is not None
                   else _number(catalog_cfg, "epoch", 2000.0, "config.catalog.", name))
     limit = (options.mag_limit if options.mag_limit is not None
-             else _number(config, "mag_limit", 5.5, "config.", name))
+             else _number(config, "mag_limit", 6.5, "config.", name))  # as adfusion solve
     catalog = Catalog.hipparcos(mag_limit=limit, epoch=epoch)
     sigma_px = _number(cam_cfg, "centroid_sigma_px", 0.5, "config.camera.", name)
     extra = {"fov_error_deg": options.fov_error_deg} if options.fov_error_deg else {}
