@@ -389,3 +389,20 @@ def test_attitude_records_agree_with_the_rotation_module():
                     for a, b in zip(p, q, strict=True)])
     want = np.degrees(rot.log_map(rot.multiply(p, rot.inverse(q))))
     assert np.abs(err - want).max() < 1e-12
+
+
+def test_frames_without_a_fix_are_counted_by_reason(shared_dir, tmp_path, capsys):
+    """The summary says how many frames gave no fix and why (a new user saw "identified 3"
+    beside "lost-in-space 4" and nothing about the rest)."""
+    src = shared_dir / "data" / "real-images"
+    names = sorted(p.name for p in src.glob("*.tiff"))[:2]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for n in names:
+        (folder / n).symlink_to(src / n)
+    cv2.imwrite(str(folder / "zz_dark.tiff"), np.zeros((768, 1024), np.uint16))
+    assert main(["replay", str(folder), "-o", str(tmp_path / "o.mcap"), "--fov", "11.4",
+                 "--fps", "1", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["identified"] == 2 and summary["frames"] == 3
+    assert sum(summary["not_identified"].values()) == 1, summary["not_identified"]

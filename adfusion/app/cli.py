@@ -608,6 +608,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
                 if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
                     raise ValueError(f"could not write the overlay to {args.overlay}")
+                print(f"overlay → {args.overlay}", file=sys.stderr)
         records.append(rec)
         if bar is not None:
             bar.update(1)

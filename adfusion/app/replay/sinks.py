@@ -67,6 +67,7 @@ class ReplaySummary:
     problem: str = ""  # the first of problems (kept for callers of the one-line form)
     problems: list[str] = field(default_factory=list)  # every input problem, dropped counts
     dropped: dict[str, int] = field(default_factory=dict)  # input kind → messages dropped
+    not_identified: dict[str, int] = field(default_factory=dict)  # why → frames
     smoothed_errors_deg: list[float] = field(default_factory=list)
     smoothed_sigmas_deg: list[float] = field(default_factory=list)
     smoother: dict[str, Any] = field(default_factory=dict)  # replay(smooth=True) only
@@ -95,6 +96,10 @@ class ReplaySummary:
         lines = [f"frames {self.frames}, identified {self.identified} "
                  f"({100 * self.identified / max(self.frames, 1):.1f} %), modes {self.modes}, "
                  f"rejected fixes {self.rejected_fixes}"]
+        if self.not_identified:  # every frame without an accepted fix, by reason
+            lines.append(f"not identified: {sum(self.not_identified.values())} frame(s) — "
+                         + "; ".join(f"{why}: {n}" for why, n in sorted(
+                             self.not_identified.items(), key=lambda kv: -kv[1])))
         if self.frames_with_3_stars:
             pct = 100 * self.identified_with_3_stars / self.frames_with_3_stars
             lines.append(f"frames with ≥ 3 catalogue stars in view: {self.frames_with_3_stars},"
@@ -388,8 +393,16 @@ class SummarySink:
             s.modes[sol.mode] = s.modes.get(sol.mode, 0) + 1
         if rec.fix_accepted:
             s.identified += 1
-        elif sol is not None and sol.ok:
-            s.rejected_fixes += 1
+        else:
+            if sol is not None and sol.ok:
+                s.rejected_fixes += 1
+                why = "fix rejected by the filter's gate"
+            elif sol is not None:
+                why = sol.reason.split(":")[0].strip() or "no solution"
+            else:
+                why = next((w for src, w in rec.rejected if src == "camera"), "no frame")
+                why = why.split(":")[0].strip()
+            s.not_identified[why[:60]] = s.not_identified.get(why[:60], 0) + 1
         # scored at close, against the truth interpolated at the estimate's time: the file
         # order of equal-time truth and frame messages must not change the score
         sigma = None if rec.sigma_rad is None else float(np.linalg.norm(rec.sigma_rad[:3]))
