@@ -25,6 +25,10 @@ from scipy.spatial import cKDTree
 
 __all__ = ["Tracking", "corner_sigma_px", "pair_within"]
 
+# Gates wider than this many match radii let a two-star fit turn the frame far enough to
+# pair a false detection with some catalogue star: the chance is then bounded separately.
+_LOOSE_GATE = 4.0
+
 
 class Tracking:
     """The tracking half of :class:`starid.Solver` (a mixin)."""
@@ -167,6 +171,22 @@ class Tracking:
             n_fit = self._pairings_that_fit(b_use, xy[det_i], pred_xy, pred_idx, wide)
             if n_fit > 1:
                 p_false = max(p_false, (n_fit - 1) / n_fit)
+            if wide > _LOOSE_GATE * tight:
+                # ... and when one detection is not a star at all, only the wrong pairing
+                # is left to fit. With gates many match radii wide the fit may turn the
+                # frame anywhere inside them, so the tight-radius chance above no longer
+                # bounds it (within a few radii it does: the fit cannot move far): the chance
+                # that some catalogue pair lies in the two gates with the detections'
+                # separation, for any pair of the M detections, is the expected stars per
+                # gate (this field's catalogue density) squared times the share of
+                # separations within the pair tolerance (a fix 1.08° off passed at a 0.5°
+                # prior before). A tight prior's gates are the match radius: covered above.
+                rho = len(pred_xy) / float(cam.width * cam.height)
+                per_gate = rho * math.pi * wide * wide
+                tol_px = self.tolerance_rad / cam.pixel_scale_rad
+                pairs = len(xy) * (len(xy) - 1) / 2
+                p_false = max(p_false, min(1.0, pairs * per_gate * per_gate
+                                           * min(1.0, tol_px / wide)))
         matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
         cand = Candidate(
             q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,

@@ -104,3 +104,12 @@ def test_every_command_on_the_fuzz_corpus(cli_files, tmp_path):
                      ["report", path, "-o", str(out)], ["replay", path, "-o", f"{out}.mcap"]):
             if (argv[0], name) not in slow:
                 fuzz.check_cli(argv)
+
+
+def test_a_two_star_fix_with_a_false_star_under_a_loose_prior_is_not_accepted():
+    """The long fuzz run's wrong attitude (seed 16): a loose prior (0.5°), one false star
+    among two tracked detections; the fix was accepted 1.08° off at p_false 2.6e-7 because
+    only the wrong pairing fitted. The chance bound for wide gates refuses it."""
+    bank = fuzz.SolverBank(fovs_deg=(12.0,))
+    assert fuzz.check_solver(bank, 2908631232, 12.0, 1, 0.7, 0.1, "prior", 0.0, 0.5) in (
+        "ok", "reported")
