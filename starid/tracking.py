@@ -181,7 +181,8 @@ class Tracking:
                 # gate (this field's catalogue density) squared times the share of
                 # separations within the pair tolerance (a fix 1.08° off passed at a 0.5°
                 # prior before). A tight prior's gates are the match radius: covered above.
-                rho = len(pred_xy) / float(cam.width * cam.height)
+                # the density of the *other* stars: the two matched ones are not a chance
+                rho = max(len(pred_xy) - 2, 0) / float(cam.width * cam.height)
                 per_gate = rho * math.pi * wide * wide
                 tol_px = self.tolerance_rad / cam.pixel_scale_rad
                 pairs = len(xy) * (len(xy) - 1) / 2
