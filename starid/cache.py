@@ -161,21 +161,32 @@ class CacheEntry:
     last_used: float
 
 
+def env_size_bytes(name: str, default: float, unit: str, scale: float,
+                   allow_zero: bool) -> int:
+    """A size limit from the environment variable ``name`` in ``unit`` (``scale`` bytes
+    each; ``default`` when unset), as bytes — one reader for the cache cap and the index's
+    memory bound, with the error naming the variable.
+
+    >>> env_size_bytes("ADFUSION_NO_SUCH_LIMIT", 1.5, "gigabytes", 1e9, False)
+    1500000000
+    """
+    env = os.environ.get(name, "").strip()
+    try:
+        value = float(env) if env else default
+    except ValueError:
+        raise ValueError(f"{name} must be a number of {unit}, got {env!r}") from None
+    if not (value >= 0 if allow_zero else value > 0):
+        raise ValueError(f"{name} must be {'≥ 0' if allow_zero else 'positive'}, got {env!r}")
+    return int(value * scale)
+
+
 def cache_limit_bytes() -> int:
     """The cache's size cap: ``$ADFUSION_CACHE_MAX_MB`` megabytes (default 2000).
 
     >>> cache_limit_bytes() > 0
     True
     """
-    env = os.environ.get("ADFUSION_CACHE_MAX_MB", "").strip()
-    try:
-        mb = float(env) if env else DEFAULT_MAX_MB
-    except ValueError:
-        raise ValueError(f"ADFUSION_CACHE_MAX_MB must be a number of megabytes, got {env!r}")\
-            from None
-    if not mb >= 0:
-        raise ValueError(f"ADFUSION_CACHE_MAX_MB must be ≥ 0, got {env!r}")
-    return int(mb * 1e6)
+    return env_size_bytes("ADFUSION_CACHE_MAX_MB", DEFAULT_MAX_MB, "megabytes", 1e6, True)
 
 
 def cache_info() -> list[CacheEntry]:

@@ -31,11 +31,10 @@ from __future__ import annotations
 
 import hashlib
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
-from adfusion.starid.cache import cached_arrays
+from adfusion.starid.cache import cached_arrays, env_size_bytes
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
@@ -67,15 +66,7 @@ def max_index_bytes() -> int:
     >>> max_index_bytes() > 0
     True
     """
-    env = os.environ.get("ADFUSION_INDEX_MAX_GB", "").strip()
-    try:
-        gb = float(env) if env else DEFAULT_MAX_GB
-    except ValueError:
-        raise ValueError(f"ADFUSION_INDEX_MAX_GB must be a number of gigabytes, got {env!r}")\
-            from None
-    if not gb > 0:
-        raise ValueError(f"ADFUSION_INDEX_MAX_GB must be positive, got {env!r}")
-    return int(gb * 1e9)
+    return env_size_bytes("ADFUSION_INDEX_MAX_GB", DEFAULT_MAX_GB, "gigabytes", 1e9, False)
 
 
 def estimate_pairs(vectors: NDArray[np.float64], max_sep_rad: float,
