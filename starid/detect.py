@@ -655,6 +655,7 @@ def detect(
     matched_filter: float | None = None,
     max_blob_density: float | None = 0.005,
     clutter_noise_factor: float | None = 1.3,
+    max_diffuseness: float | None = 6.0,
 ) -> Detections:
     """Find the stars in a frame: centroids, flux, area, peak, brightest first.
 
@@ -699,6 +700,14 @@ def detect(
             a roof edge: structure, not sky) — are listed after all others, brightest
             first among themselves, so that the stars on clean sky lead the list the solver
             reads. None = flux order only.
+        max_diffuseness: blobs whose effective area (flux / peak) exceeds this many times
+            that of the frame's compact blobs (the lower quartile of the brightest 30) are
+            listed after all others — lit foliage, a roof's texture, a comet's coma: far
+            broader than the stars' PSF — unless their peak reaches 90 % of the frame's
+            highest (a saturated star is flat-topped: its effective area grows with its
+            flux). On the 21 shared real frames no unsaturated star exceeds 6.6× (the
+            broadest are the brightest, their wings above the threshold); a lit tree's
+            leaves among its brightest 30 reach 6–17×. None = off.
 
     Returns:
         `Detections` (``bright_pixels`` counts the pixels above threshold, Renken's
@@ -731,6 +740,8 @@ def detect(
     if clutter_noise_factor is not None and not clutter_noise_factor > 1:
         raise ValueError(f"clutter_noise_factor must be > 1 or None, got "
                          f"{clutter_noise_factor!r}")
+    if max_diffuseness is not None and not max_diffuseness > 1:
+        raise ValueError(f"max_diffuseness must be > 1 or None, got {max_diffuseness!r}")
     img = _as_grey(image)
     shape = (int(img.shape[0]), int(img.shape[1]))
     if camera is not None:
@@ -834,6 +845,8 @@ def detect(
     )
     if noise_grid is not None and clutter_noise_factor is not None and len(det) > 1:
         det = _clutter_last(det, noise_grid, background_block, clutter_noise_factor)
+    if threshold is None and max_diffuseness is not None and len(det) >= _DIFFUSE_MIN_BLOBS:
+        det = _diffuse_last(det, max_diffuseness)
     if max_detections is not None and len(det) > max_detections:
         det = _first(det, max_detections)
     return det
@@ -881,6 +894,26 @@ def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
     if not clutter.any() or clutter.all():
         return det
     return _first(det, np.concatenate([np.flatnonzero(~clutter), np.flatnonzero(clutter)]))
+
+
+# the compact blobs' effective area: the lower quartile over the brightest this many
+_DIFFUSE_REFERENCE_COUNT = 30
+_DIFFUSE_MIN_BLOBS = 4
+# a blob whose peak reaches this fraction of the frame's highest counts as saturated
+_SATURATED_PEAK_FRACTION = 0.9
+
+
+def _diffuse_last(det: Detections, factor: float) -> Detections:
+    """Detections far broader than the frame's stars after the others (order within each
+    group kept): effective area flux/peak above ``factor`` × the lower quartile of the
+    brightest :data:`_DIFFUSE_REFERENCE_COUNT`, peak below 90 % of the frame's highest."""
+    peak = np.maximum(det.peak, 1e-30)
+    a_eff = det.flux / peak
+    ref = float(np.percentile(a_eff[:_DIFFUSE_REFERENCE_COUNT], 25))
+    diffuse = (a_eff > factor * ref) & (det.peak < _SATURATED_PEAK_FRACTION * det.peak.max())
+    if not diffuse.any() or diffuse.all():
+        return det
+    return _first(det, np.concatenate([np.flatnonzero(~diffuse), np.flatnonzero(diffuse)]))
 
 
 def _label(mask: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:

@@ -693,3 +693,31 @@ def test_foreground_clutter_comes_after_the_sky_stars():
     lead = det.xy[:n_sky]
     assert np.mean(lead[:, 0] < 395) >= 0.9
     assert np.mean(plain.xy[:n_sky, 0] < 395) < 0.9  # without it the tree leads
+
+
+def test_diffuse_blobs_come_after_the_stars():
+    """Blobs far broader than the stars (lit leaves, a roof's texture, a coma) with more
+    flux than the stars no longer lead the list — on clean sky, where the clutter test
+    (local noise and crowding) does not see them; a saturated star (flat top, as broad)
+    keeps its place."""
+    img, _, xy = _frame(26, 15, (30, 60), noise=2.0, background=20.0)
+    rng = np.random.default_rng(6)
+    blobs = rng.uniform([40, 40], [SHAPE[1] - 40, SHAPE[0] - 40], (10, 2))
+    yy, xx = np.mgrid[: SHAPE[0], : SHAPE[1]]
+    extra = np.zeros_like(img, dtype=np.float64)
+    for bx, by in blobs:  # peak 12σ, σ 6 px: ~20× a star's flux/peak, and brighter
+        extra += 24.0 * np.exp(-((xx - bx) ** 2 + (yy - by) ** 2) / (2 * 6.0**2))
+    sat_xy = (xy[0] + 0.3).round().astype(int)
+    frame = img + extra
+    frame[sat_xy[1] - 2: sat_xy[1] + 3, sat_xy[0] - 2: sat_xy[0] + 3] = 2000.0  # saturated
+    frame = frame.astype(np.float32)
+    plain = detect(frame, max_diffuseness=None)
+    det = detect(frame)
+    n = len(xy)
+    near_star = lambda p: np.min(np.hypot(*(xy - p).T)) < 3.0  # noqa: E731
+    assert np.mean([near_star(p) for p in plain.xy[:n]]) < 0.5  # without it the blobs lead
+    assert np.mean([near_star(p) for p in det.xy[:n]]) >= 0.9
+    assert np.hypot(*(det.xy[0] - sat_xy)) < 1.0  # the saturated star is still first
+    assert len(det) == len(plain)  # reordered, nothing dropped
+    with pytest.raises(ValueError, match="max_diffuseness"):
+        detect(frame, max_diffuseness=1.0)
