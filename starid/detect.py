@@ -403,8 +403,8 @@ def _quantiles(
     if samples.dtype.kind in "ui" and samples.size:
         first, last = int(samples.min()), int(samples.max())
         if last - first < _HIST_MAX_LEVELS:
-            return _quantiles_by_histogram(samples, first, last - first + 1, k_lo, k_med,
-                                           step, interpolate_lo)
+            return _quantiles_by_clipped_histogram(samples, first, last, k_lo, k_med, step,
+                                                   interpolate_lo)
     # A full row sort: numpy's SIMD sorts beat even one np.partition here (and a multi-kth
     # partition by ~10×).
     samples.sort(axis=1)
@@ -422,10 +422,45 @@ def _quantiles(
 _HIST_MAX_LEVELS = 1024
 
 
-def _quantiles_by_histogram(
-    samples: np.ndarray, first: int, levels: int, k_lo: int, k_med: int, step: float,
+# A histogram spanning more levels than this is first tried on the samples clipped to the
+# levels where nearly all of them lie (stars and dark pixels stretch the range 5–10×)
+_HIST_CLIP_MIN_LEVELS = 64
+_HIST_CLIP_SUBSAMPLE = 37  # every this-many-th sample locates that range
+
+
+def _quantiles_by_clipped_histogram(
+    samples: np.ndarray, first: int, last: int, k_lo: int, k_med: int, step: float,
     interpolate_lo: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_quantiles_by_histogram` over ``first..last``, exactly, on fewer levels:
+    clipping the samples to [a, b] changes no count of samples ≤ v for a ≤ v < b, so an
+    order statistic found strictly inside (a, b) is the unclipped one; the rows whose
+    statistic lands on a clipped end are recomputed over the full range."""
+    levels = last - first + 1
+    if levels > _HIST_CLIP_MIN_LEVELS:
+        sub = samples.ravel()[:: _HIST_CLIP_SUBSAMPLE]
+        n_sub = sub.size
+        i_lo, i_hi = int(0.002 * (n_sub - 1)), int(0.998 * (n_sub - 1))
+        part = np.partition(sub, (i_lo, i_hi))
+        margin = 2 * max(int(step), 1)
+        a = max(int(part[i_lo]) - margin, first)
+        b = min(int(part[i_hi]) + margin, last)
+        if 2 * (b - a + 1) < levels:
+            clipped = np.clip(samples, a, b)
+            lo, med, at_end = _quantiles_by_histogram(clipped, a, b - a + 1, k_lo, k_med, step,
+                                                      interpolate_lo, ends=True)
+            if at_end.any():
+                rows = np.flatnonzero(at_end)
+                lo[rows], med[rows] = _quantiles_by_histogram(
+                    samples[rows], first, levels, k_lo, k_med, step, interpolate_lo)
+            return lo, med
+    return _quantiles_by_histogram(samples, first, levels, k_lo, k_med, step, interpolate_lo)
+
+
+def _quantiles_by_histogram(
+    samples: np.ndarray, first: int, levels: int, k_lo: int, k_med: int, step: float,
+    interpolate_lo: bool, ends: bool = False,
+) -> tuple[np.ndarray, ...]:
     """:func:`_quantiles` for integer data on ``levels`` grey levels from ``first``, from one
     row-wise histogram; gives exactly what the sort gives, including the every-other-sample
     count of :func:`_interpolated_quantile` (the even ranks of a sorted row below a value v
@@ -437,8 +472,11 @@ def _quantiles_by_histogram(
     cum = hist.cumsum(axis=1)  # samples ≤ level
     r = np.arange(rows)
 
+    at_end = np.zeros(rows, bool)
+
     def order_stat(k: int, interpolate: bool) -> np.ndarray:
         b = np.count_nonzero(cum <= k, axis=1)  # the level holding the k-th smallest
+        at_end[(b == 0) | (b == levels - 1)] = True
         value = (b + first).astype(np.float64)
         if not (step and interpolate):
             return value
@@ -452,7 +490,8 @@ def _quantiles_by_histogram(
         rank = (k + 0.5) / n * m
         return value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
 
-    return order_stat(k_lo, interpolate_lo), order_stat(k_med, True)
+    lo, med = order_stat(k_lo, interpolate_lo), order_stat(k_med, True)
+    return (lo, med, at_end) if ends else (lo, med)
 
 
 def _interpolated_quantile(

@@ -721,3 +721,55 @@ def test_diffuse_blobs_come_after_the_stars():
     assert len(det) == len(plain)  # reordered, nothing dropped
     with pytest.raises(ValueError, match="max_diffuseness"):
         detect(frame, max_diffuseness=1.0)
+
+
+def test_the_clipped_histogram_gives_the_full_histograms_quantiles():
+    """The background's quantiles from a histogram clipped to where nearly all samples lie
+    are exactly those of the full range and of a plain sort — also for a row (a glow, a
+    dark corner) whose statistics fall on a clipped end and are recomputed."""
+    from adfusion.starid.detect import (
+        _quantiles,
+        _quantiles_by_clipped_histogram,
+        _quantiles_by_histogram,
+    )
+
+    rng = np.random.default_rng(7)
+
+    def check(s):
+        n = s.shape[1]
+        k_med = (n - 1) // 2
+        k_lo = round(0.1587 * (n - 1))
+        first, last = int(s.min()), int(s.max())
+        for interp in (False, True):
+            got = _quantiles_by_clipped_histogram(s.copy(), first, last, k_lo, k_med, 1.0,
+                                                  interp)
+            full = _quantiles_by_histogram(s.copy(), first, last - first + 1, k_lo, k_med,
+                                           1.0, interp)
+            ref = _quantiles(s.astype(np.float64), 1.0, interp)  # the sort path
+            for g, f, r in zip(got, full, ref, strict=True):
+                np.testing.assert_array_equal(g, f)
+                np.testing.assert_allclose(g, r, rtol=0, atol=1e-12)
+        return got
+
+    def frame(rows, dtype):
+        v = rng.normal(rng.uniform(20, 120), rng.uniform(0.7, 5), (rows, 256))
+        stars = rng.random(v.shape) < 0.03
+        v[stars] += rng.uniform(30, 300, stars.sum())
+        v[rng.random(v.shape) < 0.01] = 0  # dead pixels
+        return v
+
+    for dtype in (np.uint8, np.int32):
+        for _ in range(30):
+            v = frame(int(rng.integers(3, 40)), dtype)
+            v[0] += 90.0  # a glow
+            v[1] -= 60.0  # a dark corner
+            s = np.clip(np.round(v), 0, 255).astype(dtype)
+            check(s - int(np.median(s)) if dtype is np.int32 else s)
+    # one glow row among many: beyond the range the clip keeps, so it is recomputed
+    v = frame(800, np.int32)
+    v[0] += 600.0
+    s = np.round(v).astype(np.int32) - 60
+    _, med = check(s)
+    sub = s.ravel()[::37]
+    top = np.sort(sub)[int(0.998 * (sub.size - 1))]
+    assert med[0] > top + 2 and med[0] == pytest.approx(np.median(s[0]), abs=1.0)
