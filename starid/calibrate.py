@@ -258,6 +258,8 @@ def _fit_model(data: list[tuple[NDArray, NDArray]], cam0: Camera, terms: tuple[s
                                                                           strict=True)]
     par = float(cam0.parity)
     skew = cam0.K[0, 1] / fx0
+    higher_radial = "k2" in slots or bool(d0[1] or d0[4])
+    tangential = "tangential" in slots or bool(d0[2] or d0[3])
 
     def intrinsics(p: NDArray) -> tuple[NDArray, ...]:
         """Per parameter set (rows of p): fx, fy, cx, cy (S,) and D (S, 5)."""
@@ -300,11 +302,16 @@ def _fit_model(data: list[tuple[NDArray, NDArray]], cam0: Camera, terms: tuple[s
         fx, fy, cx, cy, d = intrinsics(p)
         k1, k2, p1, p2, k3 = (d[:, i, None] for i in range(5))
         r2 = x * x + y * y
-        rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        return np.stack([fx[:, None] * (xd + skew * yd) + cx[:, None],
-                         fy[:, None] * yd + cy[:, None]], -1)
+        # the terms neither fitted nor in the camera are left out (these fits are small:
+        # their cost is the number of array operations, not their size)
+        rad = 1 + r2 * (k1 + r2 * (k2 + r2 * k3)) if higher_radial else 1 + r2 * k1
+        xd, yd = x * rad, y * rad
+        if tangential:
+            xy2 = 2 * x * y
+            xd = xd + p1 * xy2 + p2 * (r2 + 2 * x * x)
+            yd = yd + p1 * (r2 + 2 * y * y) + p2 * xy2
+        u = fx[:, None] * (xd + skew * yd if skew else xd) + cx[:, None]
+        return np.stack([u, fy[:, None] * yd + cy[:, None]], -1)
 
     prior_idx = [(sl, _PRIOR_SIGMA[t]) for t, sl in slots.items() if t in _PRIOR_SIGMA]
 
