@@ -52,32 +52,29 @@ def predict_pinhole(vectors, rows, all_rows, R, A, c, cos_cone, lo, hi_x, hi_y, 
     the solver's ``_predict``: (u·z, v·z, z) = H R r, H = [[A, c], [0, 0, 1]]. Detections:
     ``(xy @ M1 + off)`` normalised (:meth:`Camera.pixels_to_vectors`). Returns (pixel
     positions (P, 2), catalogue rows (P,), detection vectors (M, 3))."""
-    # H R, row by row (H's last row is (0, 0, 1): z is r·R[2] exactly)
-    h = np.empty((3, 3))
-    for k in range(3):
-        h[0, k] = A[0, 0] * R[0, k] + A[1, 0] * R[1, k] + c[0] * R[2, k]
-        h[1, k] = A[0, 1] * R[0, k] + A[1, 1] * R[1, k] + c[1] * R[2, k]
-        h[2, k] = R[2, k]
+    # H R, row by row (H's last row is (0, 0, 1): z is r·R[2] exactly); in scalars, so
+    # the loop keeps them in registers (as array reads it ran ~15× slower)
+    a00, a01, a10, a11, c0, c1 = A[0, 0], A[0, 1], A[1, 0], A[1, 1], c[0], c[1]
+    h00 = a00 * R[0, 0] + a10 * R[1, 0] + c0 * R[2, 0]
+    h01 = a00 * R[0, 1] + a10 * R[1, 1] + c0 * R[2, 1]
+    h02 = a00 * R[0, 2] + a10 * R[1, 2] + c0 * R[2, 2]
+    h10 = a01 * R[0, 0] + a11 * R[1, 0] + c1 * R[2, 0]
+    h11 = a01 * R[0, 1] + a11 * R[1, 1] + c1 * R[2, 1]
+    h12 = a01 * R[0, 2] + a11 * R[1, 2] + c1 * R[2, 2]
+    h20, h21, h22 = R[2, 0], R[2, 1], R[2, 2]
     n_rows = vectors.shape[0] if all_rows else rows.shape[0]
-    out_xy = np.empty((min(n_rows, 4096), 2))
-    out_idx = np.empty(out_xy.shape[0], dtype=np.int64)
+    out_xy = np.empty((n_rows, 2))
+    out_idx = np.empty(n_rows, dtype=np.int64)
     n = 0
     for k in range(n_rows):
         r = k if all_rows else rows[k]
         v0, v1, v2 = vectors[r, 0], vectors[r, 1], vectors[r, 2]
-        z = v0 * h[2, 0] + v1 * h[2, 1] + v2 * h[2, 2]
+        z = v0 * h20 + v1 * h21 + v2 * h22
         if z < cos_cone or not z > 0.0:
             continue
-        u = (v0 * h[0, 0] + v1 * h[0, 1] + v2 * h[0, 2]) / z
-        w = (v0 * h[1, 0] + v1 * h[1, 1] + v2 * h[1, 2]) / z
+        u = (v0 * h00 + v1 * h01 + v2 * h02) / z
+        w = (v0 * h10 + v1 * h11 + v2 * h12) / z
         if u >= lo and u <= hi_x and w >= lo and w <= hi_y:
-            if n == out_xy.shape[0]:  # a very dense field: grow (loops, not slices)
-                grown_xy = np.empty((2 * n, 2))
-                grown_idx = np.empty(2 * n, dtype=np.int64)
-                for i in range(n):
-                    grown_xy[i, 0], grown_xy[i, 1], grown_idx[i] = out_xy[i, 0], out_xy[i, 1], \
-                        out_idx[i]
-                out_xy, out_idx = grown_xy, grown_idx
             out_xy[n, 0], out_xy[n, 1], out_idx[n] = u, w, r
             n += 1
     b = np.empty((xy.shape[0], 3))
