@@ -105,6 +105,7 @@ def run(duration_s: float = 10.0, rounds: int = 5, seed: int = 1) -> dict[str, A
     load_start = list(os.getloadavg())
     solver, frames = _frames(duration_s, seed)
     solver.warm_up()
+    solver.warm_up_tracking()
     numpy_solver = _NumpyTracking(solver.catalog, solver.camera, centroid_sigma_px=0.5)
     rng = np.random.default_rng(seed)
     priors = {

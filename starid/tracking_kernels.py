@@ -117,40 +117,31 @@ def _tight_pairs(pred_idx, j, n_within, d):
     nearest one; a detection claimed twice goes to the closer star (ties to the lower
     index: :func:`starid.verify.one_to_one`). Sorted by detection: (detections, rows)."""
     n_pred = j.shape[0]
-    hit = np.empty(n_pred, dtype=np.int64)
-    n_hit = 0
+    n_det = 0
     for p in range(n_pred):
         if n_within[p] > 0:
-            hit[n_hit] = p
-            n_hit += 1
-    hit = hit[:n_hit]
-    # closest first, ties by index (a stable sort of the ascending indices)
-    order = hit[np.argsort(d[hit], kind="mergesort")]
-    owner = np.full(max(_det_bound(j, hit), 1), -1, dtype=np.int64)
-    for p in order:
-        if owner[j[p]] < 0:
-            owner[j[p]] = p
+            n_det = max(n_det, j[p] + 1)
+    # each detection's owner: the hit star nearest to it, the lower index among equals
+    owner = np.empty(n_det, dtype=np.int64)
+    for i in range(n_det):
+        owner[i] = -1
+    for p in range(n_pred):  # ascending p: a later star takes over only when strictly closer
+        if n_within[p] > 0:
+            o = owner[j[p]]
+            if o < 0 or d[p] < d[o]:
+                owner[j[p]] = p
     n = 0
-    for i in range(owner.shape[0]):
+    for i in range(n_det):
         if owner[i] >= 0:
             n += 1
     det = np.empty(n, dtype=np.int64)
     rows = np.empty(n, dtype=np.int64)
     n = 0
-    for i in range(owner.shape[0]):  # ascending detection index
+    for i in range(n_det):  # ascending detection index
         if owner[i] >= 0:
             det[n], rows[n] = i, pred_idx[owner[i]]
             n += 1
     return det, rows
-
-
-@_jit
-def _det_bound(j, hit):
-    """One more than the largest detection index the hit stars point at."""
-    m = 0
-    for p in hit:
-        m = max(m, j[p] + 1)
-    return m
 
 
 @_jit

@@ -58,6 +58,7 @@ def flight():
 
     solver, frames = _frames(FLIGHT_S, seed=1)
     solver.warm_up()
+    solver.warm_up_tracking()
     return solver, [f for f in frames if f["prior"] is not None]
 
 
