@@ -126,6 +126,8 @@ class Tracking:
         q0 = prior.q_cam_icrs
         R0 = rot.to_matrix(q0)
         M1, off, A, c = cam._ideal_pinhole
+        # (N, 3) input with flux leaves a strided view: one memory layout, one compilation
+        xy = np.ascontiguousarray(xy)
         half = 0.5 * math.radians(cam.diagonal_fov_deg) + gate_rad + 1e-3
         m = -gate_rad / cam.pixel_scale_rad
         rows, all_rows = self._tracking_rows(R0[2], half)
