@@ -40,6 +40,7 @@ from __future__ import annotations
 import os
 import warnings
 from dataclasses import dataclass, field
+from itertools import repeat
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -360,17 +361,20 @@ class _Grid:
     def at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Values of the float map at integer pixels (x, y), without building the full map."""
         if self._tables is None:  # per-column and per-row weights, once per frame
-            self._tables = (
-                self._linear(np.arange(self.shape[1]), self.coarse_shape[1], self.covered[1]),
-                self._linear(np.arange(self.shape[0]), self.coarse_shape[0], self.covered[0]),
-            )
-        (tx, x0, x1), (ty, y0, y1) = self._tables
-        fx, fy = tx[x], ty[y]
-        i0, i1, j0, j1 = x0[x], x1[x], y0[y], y1[y]
-        c = self._c64
-        top = c[j0, i0] + (c[j0, i1] - c[j0, i0]) * fx
-        bottom = c[j1, i0] + (c[j1, i1] - c[j1, i0]) * fx
-        return top + (bottom - top) * fy
+            cw = self.coarse_shape[1]
+            tx, x0, x1 = self._linear(np.arange(self.shape[1]), cw, self.covered[1])
+            ty, y0, y1 = self._linear(np.arange(self.shape[0]), self.coarse_shape[0],
+                                      self.covered[0])
+            self._tables = ((tx, x0, x1), (ty, y0 * cw, y1 * cw))  # rows as flat offsets
+        (tx, x0, x1), (ty, r0, r1) = self._tables
+        # 1-D takes on the flat coarse map: ~3× cheaper than 2-D fancy indexing
+        fx, i0, i1 = tx.take(x), x0.take(x), x1.take(x)
+        r0, r1 = r0.take(y), r1.take(y)
+        c = self._c64.ravel()
+        c00, c01, c10, c11 = c.take(r0 + i0), c.take(r0 + i1), c.take(r1 + i0), c.take(r1 + i1)
+        top = c00 + (c01 - c00) * fx
+        bottom = c10 + (c11 - c10) * fx
+        return top + (bottom - top) * ty.take(y)
 
     @staticmethod
     def _linear(p: np.ndarray, n_src: int, n_dst: int) -> tuple[np.ndarray, ...]:
@@ -1046,10 +1050,14 @@ def _measure(
         cx, cy = _ring_centroid(img, bg, mask, xs, ys, lab, wpos, px, py, n, pedestal)
 
     # ---- filters; the first matching reason wins ----
-    reason = np.full(n, "", dtype=object)
+    # (small integer codes, not an object array of strings: comparing Python strings per
+    # blob cost ~1 ms on a frame of 2000 blobs)
+    code = np.zeros(n, np.int8)
+    whys: list[str] = [""]
 
     def flag(cond: np.ndarray, why: str) -> None:
-        reason[(reason == "") & cond] = why
+        whys.append(why)
+        code[(code == 0) & cond] = len(whys) - 1
 
     flag(area > max_area, "too_large")
     if max_sharpness is not None:
@@ -1066,10 +1074,11 @@ def _measure(
         flag((area >= _MIN_AREA_FOR_SHAPE) & (np.sqrt(major / minor) > max_elongation),
              "elongated")
 
-    bad = reason != ""
-    rejected = list(map(Rejection._make, zip(
-        cx[bad].tolist(), cy[bad].tolist(), area[bad].tolist(), reason[bad].tolist(),
-        strict=True,
+    bad = code != 0
+    # tuple.__new__ straight from C (Rejection._make is a Python call per blob)
+    rejected = list(map(tuple.__new__, repeat(Rejection), zip(
+        cx[bad].tolist(), cy[bad].tolist(), area[bad].tolist(),
+        np.array(whys, dtype=object)[code[bad]].tolist(), strict=True,
     )))
     keep = np.flatnonzero(~bad)
     # Brightest first; equal fluxes in scan order (y, then x) so the output is deterministic.
