@@ -406,6 +406,8 @@ def _quantiles(
     k_lo = min(round(_P_MINUS_1SIGMA * (n - 1)), max(k_med - 1, 0))
     if samples.dtype.kind in "ui" and samples.size:
         first, last = int(samples.min()), int(samples.max())
+        if _SIMD_SORT16 and last - first <= _SORT16_MAX_RANGE:
+            return _quantiles_by_sort16(samples, first, k_lo, k_med, step, interpolate_lo)
         if last - first < _HIST_MAX_LEVELS:
             return _quantiles_by_clipped_histogram(samples, first, last, k_lo, k_med, step,
                                                    interpolate_lo)
@@ -419,6 +421,46 @@ def _quantiles(
         if interpolate_lo:
             lo = _interpolated_quantile(samples, lo, k_lo, step)
     return lo, med
+
+
+def _has_simd_sort16() -> bool:
+    """Whether numpy sorts 16-bit integers with its AVX-512 (Ice Lake level) SIMD sort."""
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__
+    except ImportError:  # a numpy without the table: assume the plain sort
+        return False
+    return bool(__cpu_features__.get("AVX512_ICL"))
+
+
+# With numpy's SIMD 16-bit sort, integer samples spanning at most this many levels are
+# shifted into int16 and sorted: 2040 blocks × 256 samples sort in ~0.2 ms against ~1.5 ms
+# for the histogram (AMD EPYC, numpy 2.4); without it a 16-bit sort is ~50× slower and the
+# histogram below is the fast path.
+_SIMD_SORT16 = _has_simd_sort16()
+_SORT16_MAX_RANGE = 32767
+
+
+def _quantiles_by_sort16(
+    samples: np.ndarray, first: int, k_lo: int, k_med: int, step: float, interpolate_lo: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_quantiles` of integer data spanning at most 32767 levels from ``first``:
+    the same order statistics and in-level interpolation, sorted as int16 after the shift
+    (wrap-around subtraction is exact modulo 2¹⁶, and the differences fit)."""
+    s = np.subtract(samples, samples.dtype.type(first), dtype=np.int16, casting="unsafe")
+    s.sort(axis=1)
+    n = s.shape[1]
+    out = []
+    for k, interpolate in ((k_lo, interpolate_lo), (k_med, True)):
+        v = s[:, k]
+        value = v.astype(np.float64) + first
+        if step and interpolate:  # as _interpolated_quantile, counted on the shifted data
+            sub = s[:, ::2] if n >= 128 else s
+            below = np.count_nonzero(sub < v[:, None], axis=1)
+            equal = np.count_nonzero(sub == v[:, None], axis=1)
+            rank = (k + 0.5) / n * sub.shape[1]
+            value = value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
+        out.append(value)
+    return out[0], out[1]
 
 
 # Integer data spanning fewer grey levels than this take the histogram path (8-bit video,

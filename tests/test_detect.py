@@ -599,14 +599,40 @@ def test_histogram_quantiles_equal_the_sorted_ones():
         data = data.astype(dtype)
         for interpolate_lo in (True, False):
             fast = det._quantiles(data.copy(), step, interpolate_lo)
-            saved, det._HIST_MAX_LEVELS = det._HIST_MAX_LEVELS, 0  # force the sort
+            saved = det._HIST_MAX_LEVELS, det._SIMD_SORT16
+            det._HIST_MAX_LEVELS, det._SIMD_SORT16 = 0, False  # force the plain sort
             try:
                 slow = det._quantiles(data.copy(), step, interpolate_lo)
             finally:
-                det._HIST_MAX_LEVELS = saved
+                det._HIST_MAX_LEVELS, det._SIMD_SORT16 = saved
             np.testing.assert_array_equal(fast[0], slow[0])
             np.testing.assert_array_equal(fast[1], slow[1])
 
+
+
+def test_the_int16_sort_gives_the_histograms_quantiles():
+    """The shifted int16 sort (the fast path where numpy has a SIMD 16-bit sort) gives
+    exactly the histogram's order statistics and in-level interpolation — also for data
+    whose shift wraps around int16 (uint16 near 65535, int32 far from 0)."""
+    from adfusion.starid.detect import _quantiles_by_histogram, _quantiles_by_sort16
+
+    rng = np.random.default_rng(3)
+    for base, dtype in ((0, np.uint8), (60000, np.uint16), (-100000, np.int32),
+                        (2**30, np.int32)):
+        for n in (5, 127, 128, 256):
+            data = (rng.poisson(rng.uniform(2, 60), (20, n)) + base).astype(dtype)
+            if dtype != np.uint8:
+                data[0, :3] -= 30000  # a 30000-level span: still within int16 after the shift
+            first, last = int(data.min()), int(data.max())
+            k_med = (n - 1) // 2
+            k_lo = round(0.1587 * (n - 1))
+            for step in (0, 1):
+                for interp in (False, True):
+                    got = _quantiles_by_sort16(data.copy(), first, k_lo, k_med, step, interp)
+                    ref = _quantiles_by_histogram(data.copy(), first, last - first + 1, k_lo,
+                                                  k_med, step, interp)
+                    for g, r in zip(got, ref, strict=True):
+                        np.testing.assert_array_equal(g, r)
 
 # --- issue 14 item 1 and issue 16 item 11: frames from real sensors -------------------------
 
