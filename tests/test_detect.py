@@ -611,18 +611,18 @@ def test_histogram_quantiles_equal_the_sorted_ones():
 
 
 def test_the_int16_sort_gives_the_histograms_quantiles():
-    """The shifted int16 sort (the fast path where numpy has a SIMD 16-bit sort) gives
+    """The shifted uint16 sort (the fast path where numpy has a SIMD 16-bit sort) gives
     exactly the histogram's order statistics and in-level interpolation — also for data
-    whose shift wraps around int16 (uint16 near 65535, int32 far from 0)."""
+    whose shift wraps around 2¹⁶ (uint16 near 65535, int32 far from 0)."""
     from adfusion.starid.detect import _quantiles_by_histogram, _quantiles_by_sort16
 
     rng = np.random.default_rng(3)
     for base, dtype in ((0, np.uint8), (60000, np.uint16), (-100000, np.int32),
-                        (2**30, np.int32)):
+                        (2**30, np.int32), (-3, np.int8)):
         for n in (5, 127, 128, 256):
             data = (rng.poisson(rng.uniform(2, 60), (20, n)) + base).astype(dtype)
-            if dtype != np.uint8:
-                data[0, :3] -= 30000  # a 30000-level span: still within int16 after the shift
+            if dtype not in (np.uint8, np.int8):
+                data[0, :3] -= 50000  # a 50000-level span: still within uint16 after the shift
             first, last = int(data.min()), int(data.max())
             k_med = (n - 1) // 2
             k_lo = round(0.1587 * (n - 1))
