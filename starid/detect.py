@@ -1016,11 +1016,24 @@ def _diffuse_last(det: Detections, factor: float) -> Detections:
     brightest :data:`_DIFFUSE_REFERENCE_COUNT`, peak below 90 % of the frame's highest."""
     peak = np.maximum(det.peak, 1e-30)
     a_eff = det.flux / peak
-    ref = float(np.percentile(a_eff[:_DIFFUSE_REFERENCE_COUNT], 25))
+    ref = _lower_quartile(a_eff[:_DIFFUSE_REFERENCE_COUNT])
     diffuse = (a_eff > factor * ref) & (det.peak < _SATURATED_PEAK_FRACTION * det.peak.max())
     if not diffuse.any() or diffuse.all():
         return det
     return _first(det, np.concatenate([np.flatnonzero(~diffuse), np.flatnonzero(diffuse)]))
+
+
+def _lower_quartile(v: np.ndarray) -> float:
+    """``np.percentile(v, 25)`` (linear method) of a few finite values, by the same
+    arithmetic without its ~80 µs of call overhead (a twentieth of a 512² frame)."""
+    if not np.isfinite(v).all():
+        return float(np.percentile(v, 25))
+    s = np.sort(v).tolist()
+    pos = (len(s) - 1) * 0.25
+    i = int(pos)
+    a, b, t = s[i], s[min(i + 1, len(s) - 1)], pos - i
+    d = b - a
+    return b - d * (1 - t) if t >= 0.5 else a + d * t  # numpy's _lerp
 
 
 def _label(mask: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
