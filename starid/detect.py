@@ -633,7 +633,10 @@ def _background(img: np.ndarray, block: int) -> tuple[_Grid, np.ndarray, bool]:
         if finite.min() < _MIN_FINITE_FRACTION * samples.shape[1]:
             sparse = finite < _MIN_FINITE_FRACTION * samples.shape[1]
     lowest = np.nanmin(samples)
-    at_floor = np.count_nonzero(samples == lowest, axis=1)
+    # a row sum of the bool as uint8 into uint16 (rows hold ~256 samples) is ~3× cheaper
+    # than np.count_nonzero(axis=1)
+    at_floor = (samples == lowest).view(np.uint8).sum(
+        axis=1, dtype=np.uint16 if samples.shape[1] < 2**16 else np.intp)
     censored = at_floor > _CENSORED_FRACTION * samples.shape[1]
     if sparse is not None:
         censored &= ~sparse
