@@ -651,3 +651,313 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol
          np.zeros(0, dtype=np.int64))
     return (np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64), q,
             wp[:nw, 0], wi[:nw])
+
+
+# --- the final refit of an accepted identification (starid.refine, a fixed pinhole) ----
+
+
+@_jit
+def _to_vectors(xy, M, off):
+    """``Camera.pixels_to_vectors`` of an ideal pinhole (``_ideal_pinhole``'s M, off)."""
+    n = xy.shape[0]
+    v = np.empty((n, 3))
+    for i in range(n):
+        s = 0.0
+        for j in range(3):
+            v[i, j] = xy[i, 0] * M[0, j] + xy[i, 1] * M[1, j] + off[j]
+            s += v[i, j] * v[i, j]
+        s = math.sqrt(s)
+        for j in range(3):
+            v[i, j] /= s
+    return v
+
+
+@_jit
+def _matrix_of(q):
+    """``rotations.to_matrix`` of one quaternion (normalised first)."""
+    n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    w, x, y, z = q[0] / n, q[1] / n, q[2] / n, q[3] / n
+    R = np.empty((3, 3))
+    R[0, 0], R[0, 1], R[0, 2] = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    R[1, 0], R[1, 1], R[1, 2] = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    R[2, 0], R[2, 1], R[2, 2] = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    return R
+
+
+@_jit
+def _quaternion_of(R):
+    """``rotations.from_matrix(R, orthonormalize=False)`` (Shepperd, canonical sign)."""
+    m00, m01, m02 = R[0, 0], R[0, 1], R[0, 2]
+    m10, m11, m12 = R[1, 0], R[1, 1], R[1, 2]
+    m20, m21, m22 = R[2, 0], R[2, 1], R[2, 2]
+    tr = m00 + m11 + m22
+    k, best = 0, tr
+    if m00 > best:
+        k, best = 1, m00
+    if m11 > best:
+        k, best = 2, m11
+    if m22 > best:
+        k = 3
+    q = np.empty(4)
+    if k == 0:
+        t = 2.0 * math.sqrt(max(1.0 + tr, 0.0))
+        q[0], q[1], q[2], q[3] = 0.25 * t, (m21 - m12) / t, (m02 - m20) / t, (m10 - m01) / t
+    elif k == 1:
+        t = 2.0 * math.sqrt(max(1.0 + m00 - m11 - m22, 0.0))
+        q[0], q[1], q[2], q[3] = (m21 - m12) / t, 0.25 * t, (m01 + m10) / t, (m02 + m20) / t
+    elif k == 2:
+        t = 2.0 * math.sqrt(max(1.0 - m00 + m11 - m22, 0.0))
+        q[0], q[1], q[2], q[3] = (m02 - m20) / t, (m01 + m10) / t, 0.25 * t, (m12 + m21) / t
+    else:
+        t = 2.0 * math.sqrt(max(1.0 - m00 - m11 + m22, 0.0))
+        q[0], q[1], q[2], q[3] = (m10 - m01) / t, (m02 + m20) / t, (m12 + m21) / t, 0.25 * t
+    n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]) ** 0.5
+    lead = 1.0
+    for i in range(4):
+        if q[i] != 0.0:
+            lead = q[i]
+            break
+    s = (1.0 if lead > 0 else -1.0) / n
+    for i in range(4):
+        q[i] *= s
+    return q
+
+
+@_jit
+def _wahba(b, r, sigma):
+    """``attitude.wahba_unit`` with one sigma: (ok, q, covariance, residuals, loss); ok
+    False where it raises (collinear directions)."""
+    n = b.shape[0]
+    R, proper = _rotation(b, r)
+    cov = np.zeros((3, 3))
+    res = np.zeros(n)
+    if not proper:
+        return False, np.zeros(4), cov, res, 0.0
+    wres = 1.0 / sigma ** 2
+    S = np.zeros((3, 3))
+    for s in range(n):
+        for i in range(3):
+            for j in range(3):
+                S[i, j] += b[s, i] * b[s, j]
+    w_sum = float(n)
+    f00, f01, f02 = wres * (w_sum - S[0, 0]), -wres * S[0, 1], -wres * S[0, 2]
+    f11, f12, f22 = wres * (w_sum - S[1, 1]), -wres * S[1, 2], wres * (w_sum - S[2, 2])
+    c00 = f11 * f22 - f12 * f12
+    c01 = f02 * f12 - f01 * f22
+    c02 = f01 * f12 - f02 * f11
+    det = f00 * c00 + f01 * c01 + f02 * c02
+    if not det > 1e-12 * (f00 + f11 + f22) ** 3:
+        return False, np.zeros(4), cov, res, 0.0
+    k = 1.0 / det
+    cov[0, 0], cov[0, 1], cov[0, 2] = c00 * k, c01 * k, c02 * k
+    cov[1, 1] = (f00 * f22 - f02 * f02) * k
+    cov[1, 2] = (f01 * f02 - f00 * f12) * k
+    cov[2, 2] = (f00 * f11 - f01 * f01) * k
+    cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
+    loss = 0.0
+    for s in range(n):
+        d2 = 0.0
+        for i in range(3):
+            p = r[s, 0] * R[i, 0] + r[s, 1] * R[i, 1] + r[s, 2] * R[i, 2] - b[s, i]
+            d2 += p * p
+        res[s] = 2.0 * math.asin(min(0.5 * math.sqrt(d2), 1.0))
+        loss += res[s] * res[s]
+    return True, _quaternion_of(R), cov, res, wres * loss
+
+
+@_jit
+def _to_pixels(v, R, A, c, out, row):
+    """Pixel position of ICRS direction ``v`` at attitude R through an ideal pinhole
+    (``Camera.vectors_to_pixels``: NaN behind the camera) into ``out[row]``."""
+    x = R[0, 0] * v[0] + R[0, 1] * v[1] + R[0, 2] * v[2]
+    y = R[1, 0] * v[0] + R[1, 1] * v[1] + R[1, 2] * v[2]
+    z = R[2, 0] * v[0] + R[2, 1] * v[1] + R[2, 2] * v[2]
+    if not z > 0:
+        out[row, 0] = out[row, 1] = np.nan
+        return
+    u, w = x / z, y / z
+    out[row, 0] = u * A[0, 0] + w * A[1, 0] + c[0]
+    out[row, 1] = u * A[0, 1] + w * A[1, 1] + c[1]
+
+
+@_jit
+def _noise(res, radius_px, n_params):
+    """``refine.noise_from_residuals`` of (N, 2) residuals."""
+    dof = 2 * res.shape[0] - n_params
+    if dof <= 0:
+        return np.nan
+    tot = 0.0
+    for i in range(res.shape[0]):
+        tot += res[i, 0] * res[i, 0] + res[i, 1] * res[i, 1]
+    s2_raw = tot / dof
+    s2 = s2_raw
+    for _ in range(30):
+        u = radius_px * radius_px / (2.0 * s2) if s2 > 0 else np.inf
+        keep = 1.0 if u > 50 else 1.0 - u * math.exp(-u) / -math.expm1(-u)
+        new = s2_raw / max(keep, 0.05)
+        if abs(new - s2) <= 1e-9 * s2:
+            break
+        s2 = new
+    return math.sqrt(s2)
+
+
+@_jit
+def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx, cone_vec,
+                   cone_axis, cone_half, view_half, pix, r_min, sigma0, reject_sigma,
+                   radius_sigma, radius_max_factor, prior_dof):
+    """:meth:`starid.refine.Refinement._refine` for a camera that is not fitted and is an
+    ideal pinhole (``M``, ``off``, ``A``, ``c``: ``Camera._ideal_pinhole``): from the
+    verified pairs (detections ``det`` → catalogue rows ``cat``) the attitude refitted, the
+    noise estimated from the residuals, every detection associated again within the radius
+    that follows it, pairs beyond ``reject_sigma`` robust σ rejected, until the pairs
+    settle; then the final fit with the estimated noise.
+
+    The stars in view come from the cone (``cone_idx``, ``cone_vec`` around ``cone_axis``,
+    half-angle ``cone_half``) the solver cached; ``view_half`` is the half-angle a frame
+    needs. Returns (status, det, cat, q, covariance, residuals, sigma_px, rejected):
+    status 1 refined, 0 keep the verified fit (where the Python code returns it unchanged),
+    −1 the cone does not cover an attitude (the caller runs the Python code)."""
+    n_xy = xy.shape[0]
+    empty_i = np.zeros(0, dtype=np.int64)
+    nothing = (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
+    det0 = det
+    trunc_px = r_min
+    sigma_px = sigma0
+    n_par = 3
+    rejected = 0
+    q = np.zeros(4)
+    best = np.empty(n_xy)
+    near = np.empty(n_xy, dtype=np.int64)
+    spare_cos = math.cos(cone_half - view_half) if cone_half >= view_half else 2.0
+    for it in range(8):
+        k = len(det)
+        if k < 3:
+            return nothing
+        b = _to_vectors(xy[det], M, off)
+        r = np.empty((k, 3))
+        for s in range(k):
+            for j in range(3):
+                r[s, j] = v[cat[s], j]
+        good, q, _, _, _ = _wahba(b, r, sigma0 * pix)
+        if not good:
+            return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0,
+                    0)
+        R = _matrix_of(q)
+        res = np.empty((k, 2))
+        for s in range(k):
+            _to_pixels(r[s], R, A, c, res, s)
+            res[s, 0] -= xy[det[s], 0]
+            res[s, 1] -= xy[det[s], 1]
+        sigma_px = _noise(res, trunc_px, n_par)
+        if not math.isfinite(sigma_px):
+            sigma_px = sigma0
+        radius_px = (radius_max_factor * r_min if it == 0 else
+                     min(max(r_min, radius_sigma * sigma_px), radius_max_factor * r_min))
+        # the stars in the frame (Solver._predict): from the cached cone while it covers
+        if R[2, 0] * cone_axis[0] + R[2, 1] * cone_axis[1] + R[2, 2] * cone_axis[2] \
+                < spare_cos:
+            return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0,
+                    0)
+        m = len(cone_idx)
+        pxy = np.empty((m, 2))
+        pidx = np.empty(m, dtype=np.int64)
+        n_in = 0
+        for e in range(m):
+            _to_pixels(cone_vec[e], R, A, c, pxy, n_in)
+            u, w = pxy[n_in, 0], pxy[n_in, 1]
+            if u >= -0.5 and u <= width - 0.5 and w >= -0.5 and w <= height - 0.5:
+                pidx[n_in] = cone_idx[e]
+                n_in += 1
+        # every detection's nearest star within the radius, one-to-one (refine._associate_px)
+        if n_in == 0:
+            return nothing
+        r2 = radius_px * radius_px
+        for d in range(n_xy):
+            near[d], best[d] = -1, np.inf
+            if not ok_xy[d]:
+                continue
+            bj, bd = 0, np.inf
+            for e in range(n_in):
+                dx, dy = xy[d, 0] - pxy[e, 0], xy[d, 1] - pxy[e, 1]
+                d2 = dx * dx + dy * dy
+                if d2 < bd:
+                    bd, bj = d2, e
+            if bd <= r2:
+                near[d], best[d] = bj, bd
+        new_det = np.empty(n_xy, dtype=np.int64)
+        new_cat = np.empty(n_xy, dtype=np.int64)
+        nn = 0
+        for d in range(n_xy):
+            if near[d] < 0:
+                continue
+            own = True
+            for e in range(n_xy):
+                if e != d and near[e] == near[d] and (
+                        best[e] < best[d] or (best[e] == best[d] and e < d)):
+                    own = False
+                    break
+            if own:
+                new_det[nn], new_cat[nn] = d, pidx[near[d]]
+                nn += 1
+        if nn < 3:
+            return nothing
+        dist = np.empty(nn)
+        one = np.empty((1, 2))
+        for s in range(nn):
+            _to_pixels(v[new_cat[s]], R, A, c, one, 0)
+            dist[s] = math.hypot(xy[new_det[s], 0] - one[0, 0], xy[new_det[s], 1] - one[0, 1])
+        robust = math.sqrt(float(np.median(dist * dist)) / (2.0 * math.log(2.0)))
+        reject_px = max(reject_sigma * robust, 0.5 * r_min)
+        nk = 0
+        for s in range(nn):
+            if dist[s] <= reject_px:
+                new_det[nk], new_cat[nk] = new_det[s], new_cat[s]
+                nk += 1
+        rejected = nn - nk
+        same = nk == k
+        if same:
+            for s in range(k):
+                if new_det[s] != det[s] or new_cat[s] != cat[s]:
+                    same = False
+                    break
+        trunc_px = min(radius_px, reject_px)
+        if same:
+            break
+        det, cat = new_det[:nk].copy(), new_cat[:nk].copy()
+    return _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
+                      det0, rejected)
+
+
+@_jit
+def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par, det0,
+               rejected):
+    """The end of :func:`refine_pinhole`: the verified fit kept when the pairs walked away
+    from the verified stars (fewer than half of ``det0`` left), else the final fit."""
+    empty_i = np.zeros(0, dtype=np.int64)
+    k = len(det)
+    kept = 0
+    for s in range(k):
+        for e in range(len(det0)):
+            if det0[e] == det[s]:
+                kept += 1
+                break
+    if kept < 0.5 * len(det0) or k < 3:
+        return 0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
+    b = _to_vectors(xy[det], M, off)
+    for s in range(k):
+        for j in range(3):
+            if not math.isfinite(b[s, j]):
+                return (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0),
+                        0.0, 0)
+    r = np.empty((k, 3))
+    for s in range(k):
+        for j in range(3):
+            r[s, j] = v[cat[s], j]
+    dof = max(2 * k - n_par, 0)
+    s2 = (dof * sigma_px ** 2 + prior_dof * sigma0 ** 2) / (dof + prior_dof)
+    nu = dof + prior_dof
+    inflate = nu / (nu - 2.0) if nu > 4.0 else 2.0
+    good, q, cov, res, _ = _wahba(b, r, math.sqrt(s2 * inflate) * pix)
+    if not good:
+        return 0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
+    return 1, det, cat, q, cov, res, math.sqrt(s2), rejected
