@@ -961,3 +961,119 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
     if not good:
         return 0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
     return 1, det, cat, q, cov, res, math.sqrt(s2), rejected
+
+
+def prepare() -> float:
+    """Compile every kernel a lost-in-space solve uses now, into numba's on-disk cache,
+    and return the seconds it took: run once after an install (``python -m
+    adfusion.starid.kernels``), and the first solve of every later process loads the
+    compiled code (~1 s) instead of compiling it (10–40 s). The cache is keyed by the
+    source's content (SHA-256), the numba version and the CPU, so it stays valid until
+    one of them changes (docs/decisions.md, "First use")."""
+    import time
+
+    from adfusion.starid.camera import Camera
+    from adfusion.starid.catalog import Catalog
+    from adfusion.starid.solver import Solver
+
+    t0 = time.perf_counter()
+    Solver(Catalog.hipparcos(mag_limit=5.0), Camera.pinhole(1024, 768, 15.0),
+           cache=False).warm_up()
+    return time.perf_counter() - t0
+
+
+if __name__ == "__main__":
+    # the kernels of the imported module (not this __main__ copy) are the ones cached
+    from adfusion.starid import kernels as _kernels
+
+    print(f"adfusion.starid.kernels: compiled code ready in {_kernels.prepare():.1f} s")
+
+
+# --- the full verification of a candidate (starid.verify.Verification._verify) ---------
+
+
+@_jit
+def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius, sigma):
+    """:meth:`starid.verify.Verification._verify` for a known camera: the attitude refitted
+    on the quick check's pairs (``det`` → ``cat``, at rotation ``R``), every detection
+    associated again when that moved it by more than a quarter of the match ``radius``
+    (the pattern must keep its stars), the final Wahba fit with centroid ``sigma`` (rad),
+    and p_false = min(1, ``e_trials`` × P(Binomial(other detections, p_hit) ≥ other
+    matches)). Returns (ok, det, cat, q, covariance × variance factor, residuals,
+    p_false); ok False where the Python code returns None."""
+    v, nbr_ptr, max_sep = ix[0], ix[4], ix[8]
+    n = len(sel)
+    empty_i = np.zeros(0, dtype=np.int64)
+    fail = (False, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 1.0)
+    k = len(det)
+    b = np.empty((k, 3))
+    r = np.empty((k, 3))
+    for s in range(k):
+        for j in range(3):
+            b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
+    R2, proper = _rotation(b, r)
+    if not proper:
+        return fail
+    tr = 0.0
+    for i in range(3):
+        for j in range(3):
+            tr += R[i, j] * R2[i, j]
+    moved = math.sqrt(max(0.0, 2.0 * (3.0 - tr) / 2.0))
+    if moved > 0.25 * radius:
+        n_det = b_all.shape[0]
+        bound = 2 * math.sin(radius / 2)
+        bound2 = bound * bound
+        tgt = np.empty(n_det, dtype=np.int64)
+        dist = np.empty(n_det)
+        x = np.empty(3)
+        for d in range(n_det):
+            for j in range(3):
+                x[j] = b_all[d, 0] * R2[0, j] + b_all[d, 1] * R2[1, j] + b_all[d, 2] * R2[2, j]
+            tgt[d], d2 = _nearest(ix, x, assign[0], radius, bound2)
+            dist[d] = math.sqrt(d2)
+        det = np.empty(n_det, dtype=np.int64)
+        cat = np.empty(n_det, dtype=np.int64)
+        k = 0
+        for d in range(n_det):
+            if tgt[d] < 0:
+                continue
+            own = True
+            for e in range(n_det):
+                if e != d and tgt[e] == tgt[d] and (
+                        dist[e] < dist[d] or (dist[e] == dist[d] and e < d)):
+                    own = False
+                    break
+            if own:
+                det[k], cat[k] = d, tgt[d]
+                k += 1
+        det, cat = det[:k].copy(), cat[:k].copy()
+        for s in range(n):  # keeps_pattern
+            found = False
+            for e in range(k):
+                if det[e] == sel[s]:
+                    found = cat[e] == assign[s]
+                    break
+            if not found:
+                return fail
+        b = np.empty((k, 3))
+        r = np.empty((k, 3))
+        for s in range(k):
+            for j in range(3):
+                b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
+    if k < 2:
+        return fail
+    good, q, cov, res, loss = _wahba(b, r, sigma)
+    if not good:
+        return fail
+    dof = 2 * k - 3
+    vf = max(1.0, loss / dof) if dof > 0 else 1.0
+    for i in range(3):
+        for j in range(3):
+            cov[i, j] *= vf
+    a0 = assign[0]
+    cnt = nbr_ptr[a0 + 1] - nbr_ptr[a0]
+    area = 2 * np.pi * (1 - math.cos(max_sep))
+    rho = max(cnt / area, len(v) / (4 * np.pi)) * DENSITY_SAFETY
+    p_hit = min(1.0, rho * np.pi * radius ** 2)
+    p_false = min(1.0, e_trials * binomial_tail(k - n, n_xy - n, p_hit))
+    return True, det, cat, q, cov, res, p_false

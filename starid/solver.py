@@ -233,8 +233,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self._pattern_lists: dict[tuple[int, ...], tuple] = {}
         # the search runs compiled, except with the matchers kept in numpy
         self._compiled = not (faithful or self.n_bands > 1)
-        # the final refit of a fixed undistorted camera runs compiled (starid.refine)
-        self._compiled_refine = True
+        # a candidate's verification with a known camera (starid.verify) and the final
+        # refit of a fixed undistorted one (starid.refine) run compiled; False: in Python
+        self._compiled_verify = self._compiled_refine = True
         self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
 
     # --- public -----------------------------------------------------------------------

@@ -1,7 +1,9 @@
-"""The final refit of an identification, compiled (kernels.refine_pinhole), against the
-Python code it replaces (refine.Refinement._refine): the same pairs, notes and p_false, the
-fit to rounding — on frames with noise, false stars, dropped stars and blurred centroids.
-benchmarks/compiled_equivalence.py runs the same comparison on the benchmark's frames."""
+"""A candidate's verification and the final refit, compiled (kernels.verify_candidate,
+kernels.refine_pinhole), against the Python code they replace (verify.Verification._verify,
+refine.Refinement._refine): the same identifications, paths, trials, pairs and notes,
+p_false to 1e-12, the fit to rounding — on frames with noise, false stars, dropped stars,
+blurred centroids and sparse fields. benchmarks/compiled_equivalence.py runs the same
+comparison on the benchmark's frames."""
 
 from __future__ import annotations
 
@@ -17,22 +19,29 @@ def cat():
     return starid.Catalog.hipparcos(mag_limit=6.0, epoch=2025.0)
 
 
-@pytest.mark.parametrize("sigma_px, n_false, drop", [(0.3, 0, 0.0), (0.3, 8, 0.0),
-                                                      (0.3, 3, 0.3), (2.0, 0, 0.0)])
-def test_the_compiled_refit_equals_the_python_refit(cat, sigma_px, n_false, drop):
+@pytest.mark.parametrize("sigma_px, n_false, drop, n_max", [
+    (0.3, 0, 0.0, 99), (0.3, 8, 0.0, 99), (0.3, 3, 0.3, 99), (2.0, 0, 0.0, 99),
+    (0.3, 0, 0.0, 4)])
+def test_the_compiled_verification_equals_the_python_code(cat, sigma_px, n_false, drop,
+                                                          n_max):
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam, centroid_sigma_px=max(0.5, sigma_px))
-    rng = np.random.default_rng(40 + n_false)
+    rng = np.random.default_rng(40 + n_false + n_max)
     notes = 0
     for _ in range(12):
         xy, _ = sky_frame(cat, cam, rng, sigma_px=sigma_px, n_false=n_false, drop=drop)
-        solver._compiled_refine = True
+        xy = xy[:n_max]  # 4 stars: weak and ambiguous frames, with candidates
+        solver._compiled_verify = solver._compiled_refine = True
         a = solver.solve(xy)
-        solver._compiled_refine = False
+        solver._compiled_verify = solver._compiled_refine = False
         b = solver.solve(xy)
         assert (a.ok, a.reason, a.path, a.patterns_tried, a.matches, a.matching_counter,
-                a.note, a.p_false) == (b.ok, b.reason, b.path, b.patterns_tried, b.matches,
-                                       b.matching_counter, b.note, b.p_false)
+                a.note) == (b.ok, b.reason, b.path, b.patterns_tried, b.matches,
+                            b.matching_counter, b.note)
+        assert [c.matches for c in a.candidates] == [c.matches for c in b.candidates]
+        for x, y in zip([a.p_false] + [c.p_false for c in a.candidates],
+                        [b.p_false] + [c.p_false for c in b.candidates], strict=True):
+            assert x == y or x == pytest.approx(y, rel=1e-12)
         notes += "rejected" in a.note
         if a.ok:
             assert np.max(np.abs(a.q_cam_icrs - b.q_cam_icrs)) < 1e-12
