@@ -21,16 +21,17 @@ def cat():
 
 @pytest.mark.parametrize("sigma_px, n_false, drop, n_max", [
     (0.3, 0, 0.0, 99), (0.3, 8, 0.0, 99), (0.3, 3, 0.3, 99), (2.0, 0, 0.0, 99),
-    (0.3, 0, 0.0, 4)])
+    (0.3, 0, 0.0, 0)])
 def test_the_compiled_verification_equals_the_python_code(cat, sigma_px, n_false, drop,
                                                           n_max):
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam, centroid_sigma_px=max(0.5, sigma_px))
     rng = np.random.default_rng(40 + n_false + n_max)
-    notes = 0
+    notes = shown = 0
     for _ in range(12):
         xy, _ = sky_frame(cat, cam, rng, sigma_px=sigma_px, n_false=n_false, drop=drop)
-        xy = xy[:n_max]  # 4 stars: weak and ambiguous frames, with candidates
+        if not n_max:  # noise: weak candidates, verified to be shown
+            xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (8, 2))
         solver._compiled_verify = solver._compiled_refine = True
         a = solver.solve(xy)
         solver._compiled_verify = solver._compiled_refine = False
@@ -43,6 +44,7 @@ def test_the_compiled_verification_equals_the_python_code(cat, sigma_px, n_false
                         [b.p_false] + [c.p_false for c in b.candidates], strict=True):
             assert x == y or x == pytest.approx(y, rel=1e-12)
         notes += "rejected" in a.note
+        shown += len(a.candidates) if not a.ok else 0
         if a.ok:
             assert np.max(np.abs(a.q_cam_icrs - b.q_cam_icrs)) < 1e-12
             assert np.max(np.abs(a.residuals_rad - b.residuals_rad)) < 1e-13
@@ -52,6 +54,8 @@ def test_the_compiled_verification_equals_the_python_code(cat, sigma_px, n_false
             assert a.camera is b.camera
     if sigma_px > 1:
         assert notes > 0  # the residual rejection ran
+    if not n_max:
+        assert shown > 10
 
 
 def test_an_uncertain_camera_keeps_the_python_refit(cat, monkeypatch):
