@@ -32,8 +32,7 @@ import numba
 import numpy as np
 from adfusion.starid.verify import DENSITY_SAFETY
 
-__all__ = ["binomial_tail", "cannot_pass", "index_arrays", "match", "quick_checks", "scratch",
-           "search"]
+__all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", "search"]
 
 _jit = numba.njit(cache=True, nogil=True)
 
@@ -468,38 +467,6 @@ def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, r
     return ok, pf, rots, e_tr, det, cat, matched
 
 
-@_jit
-def cannot_pass(angles, tol, mirror_checked, n_catalog, trials, n_det, radius, floor,
-                p_false_max):
-    """Whether no assignment of a pattern (``angles``, window half-widths ``tol``) could
-    pass :func:`quick_checks` at trial ``trials`` — even if every other detection matched:
-    its p_false is at least trials × E_chance(windows at their narrowest, 2·min(floor,
-    tol)) × P(Binomial(M, p_hit) ≥ M), M = n_det − n, p_hit at the sky-mean density (its
-    least). Each factor is the quick check's own with every input at its most favourable
-    value, and every operation is monotone in those inputs (so in floating point too):
-    a pattern this says no to cannot give a strong candidate (docs/decisions.md).
-
-    >>> import numpy as np
-    >>> a = np.array([[0.0, 0.02, 0.03], [0.02, 0.0, 0.025], [0.03, 0.025, 0.0]])
-    >>> t = np.full((3, 3), 6e-4)
-    >>> bool(cannot_pass(a, t, True, 5000, 1, 3, 5.4e-4, 1.8e-4, 1e-6))  # 3 of 3
-    True
-    >>> bool(cannot_pass(a, t, True, 5000, 1, 30, 5.4e-4, 1.8e-4, 1e-6))  # 27 others
-    False
-    """
-    n = angles.shape[0]
-    w = np.empty((n, n))
-    for s in range(n):
-        for u in range(n):
-            w[s, u] = 2.0 * min(floor, tol[s, u])
-    st, sg = _spot_geometry(angles)
-    e_trials = trials * _chance(angles, w, n_catalog, mirror_checked, st, sg)
-    rho = n_catalog / (4 * np.pi) * DENSITY_SAFETY
-    p_hit = min(1.0, rho * np.pi * (radius * radius))
-    m = n_det - n
-    return e_trials * binomial_tail(m, m, p_hit) > p_false_max
-
-
 # --- a frame's whole search -------------------------------------------------------------
 
 
@@ -605,42 +572,37 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol
         if not skip:
             sel, a, t, lo, hi, chir = pattern_of(pat, ang[ci], tol[ci], cmin[ci], cmax[ci],
                                                  b_cams[ci])
-            # a pattern that cannot pass even with every other detection matched is
-            # counted, not matched (a noise frame's small patterns)
-            skip = cannot_pass(a, t, chir != 0, len(ix[0]), tried, b_cams.shape[1],
-                               radius[ci], floor[ci], p_false_max)
-            if not skip:
-                rows, over, level = match(ix, lo, hi, chir, max_partials, work)
-                if over > 0:
-                    state[5], state[6], state[7] = NOTE_WORK, over, level
+            rows, over, level = match(ix, lo, hi, chir, max_partials, work)
+            if over > 0:
+                state[5], state[6], state[7] = NOTE_WORK, over, level
+            else:
+                if first < 0:
+                    first = len(rows)
+                if len(rows) == 0:
+                    no_match[ci, n_no_match[ci]] = mask
+                    n_no_match[ci] += 1
                 else:
-                    if first < 0:
-                        first = len(rows)
-                    if len(rows) == 0:
-                        no_match[ci, n_no_match[ci]] = mask
-                        n_no_match[ci] += 1
-                    else:
-                        q = quick_checks(ix, b_cams[ci], sel, rows, a, t, chir != 0, tried,
-                                         radius[ci], floor[ci])
-                        strong = False
-                        for k in range(len(rows)):
-                            if not q[0][k]:
-                                continue
-                            if q[1][k] <= p_false_max:
-                                strong = True
-                                continue
-                            if nw == len(wi):
-                                wi = _grown(wi, nw)
-                                wp = _grown(wp, nw)
-                            wp[nw, 0] = q[1][k]
-                            wi[nw, 0], wi[nw, 1], wi[nw, 2], wi[nw, 3] = pos, ci, tried, n
-                            for i in range(n):
-                                wi[nw, 4 + i], wi[nw, 12 + i] = sel[i], rows[k, i]
-                            nw += 1
-                        if strong:
-                            state[0], state[1], state[2], state[3], state[4] = (
-                                pos, ci, tried, first, STRONG)
-                            return sel, rows, q, wp[:nw, 0], wi[:nw]
+                    q = quick_checks(ix, b_cams[ci], sel, rows, a, t, chir != 0, tried,
+                                     radius[ci], floor[ci])
+                    strong = False
+                    for k in range(len(rows)):
+                        if not q[0][k]:
+                            continue
+                        if q[1][k] <= p_false_max:
+                            strong = True
+                            continue
+                        if nw == len(wi):
+                            wi = _grown(wi, nw)
+                            wp = _grown(wp, nw)
+                        wp[nw, 0] = q[1][k]
+                        wi[nw, 0], wi[nw, 1], wi[nw, 2], wi[nw, 3] = pos, ci, tried, n
+                        for i in range(n):
+                            wi[nw, 4 + i], wi[nw, 12 + i] = sel[i], rows[k, i]
+                        nw += 1
+                    if strong:
+                        state[0], state[1], state[2], state[3], state[4] = (
+                            pos, ci, tried, first, STRONG)
+                        return sel, rows, q, wp[:nw, 0], wi[:nw]
         ci += 1
         if ci == n_cams:
             pos, ci = pos + 1, 0
@@ -651,7 +613,6 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol
          np.zeros(0, dtype=np.int64))
     return (np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.int64), q,
             wp[:nw, 0], wi[:nw])
-
 
 # --- the final refit of an accepted identification (starid.refine, a fixed pinhole) ----
 

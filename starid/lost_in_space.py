@@ -284,14 +284,7 @@ class LostInSpace:
                     continue
                 sel = np.array(pat_idx)
                 sel = sel[closest_pair_first(tables[ci].angles[sel[:, None], sel])]
-                pattern, tol = tables[ci].pattern(sel, b_all)
-                if kernels.cannot_pass(
-                        np.ascontiguousarray(pattern.angles), np.ascontiguousarray(tol),
-                        pattern.chirality != 0, len(self.vectors), run.tried, len(b_all),
-                        self._match_radius_px() * cam.pixel_scale_rad,
-                        np.sqrt(2.0) * self.centroid_sigma_px * cam.pixel_scale_rad,
-                        self.p_false_max):
-                    continue  # no candidate could pass: counted, not matched
+                pattern, _ = tables[ci].pattern(sel, b_all)
                 try:
                     assignments = self._match(pattern)
                 except WorkBudgetExceeded as e:
