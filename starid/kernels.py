@@ -763,6 +763,22 @@ def _noise(res, radius_px, n_params):
 
 
 @_jit
+def _median_of_squares(d):
+    """``np.median(d * d)`` (an insertion sort: a few dozen values, and numba's median
+    would cost seconds of compile time)."""
+    n = len(d)
+    a = np.empty(n)
+    for i in range(n):
+        x = d[i] * d[i]
+        j = i
+        while j > 0 and a[j - 1] > x:
+            a[j] = a[j - 1]
+            j -= 1
+        a[j] = x
+    return a[n // 2] if n % 2 else (a[n // 2 - 1] + a[n // 2]) / 2
+
+
+@_jit
 def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx, cone_vec,
                    cone_axis, cone_half, view_half, pix, r_min, sigma0, reject_sigma,
                    radius_sigma, radius_max_factor, prior_dof):
@@ -867,7 +883,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
         for s in range(nn):
             _to_pixels(v[new_cat[s]], R, A, c, one, 0)
             dist[s] = math.hypot(xy[new_det[s], 0] - one[0, 0], xy[new_det[s], 1] - one[0, 1])
-        robust = math.sqrt(float(np.median(dist * dist)) / (2.0 * math.log(2.0)))
+        robust = math.sqrt(_median_of_squares(dist) / (2.0 * math.log(2.0)))
         reject_px = max(reject_sigma * robust, 0.5 * r_min)
         nk = 0
         for s in range(nn):
