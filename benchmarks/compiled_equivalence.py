@@ -35,7 +35,7 @@ def differences(a, b) -> list[str]:
     pa = [a.p_false] + [c.p_false for c in a.candidates]
     pb = [b.p_false] + [c.p_false for c in b.candidates]
     if len(pa) != len(pb) or any((x is None) != (y is None) or (
-            x is not None and abs(x - y) > 1e-12 * abs(y)) for x, y in zip(pa, pb)):
+            x is not None and abs(x - y) > 1e-12 * abs(y)) for x, y in zip(pa, pb, strict=True)):
         out.append(f"p_false: {pa!r} vs {pb!r}")
     if [c.matches for c in a.candidates] != [c.matches for c in b.candidates]:
         out.append("candidates' matches differ")

@@ -13,8 +13,12 @@ with 8 false stars 16–20 ms → 2.4–3.1 ms, clean median 0.9 → 0.5 ms.
 The functions compute what the numpy reference computes (:func:`starid.nstar.
 match_indexed`, the solver's quick check with :mod:`starid.verify`'s chance estimate) —
 the same rows in the same order, the same decisions; tests compare them on random
-patterns. Compiled on first use and cached on disk (``cache=True``): the first process
-after an install or an edit spends ~10–15 s compiling (once), later ones ~0.5 s loading.
+patterns. A candidate's full verification (:func:`verify_candidate`) and the final refit
+(:func:`refine_pinhole`) are compiled too, equal to :mod:`starid.verify` and
+:mod:`starid.refine` to rounding (docs/decisions.md). Compiled on first use and cached on
+disk (``cache=True``, keyed by this file's content): the first process after an install or
+an edit spends 15–60 s compiling (once) unless :func:`prepare` (``python -m
+adfusion.starid.kernels``) did it, later ones ~1 s loading.
 
 ``ix`` below is :func:`index_arrays` of a :class:`starid.index.PatternIndex`.
 

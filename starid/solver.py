@@ -283,8 +283,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
 
     def warm_up(self) -> bool:
         """Pay the lost-in-space search's one-time costs now rather than in the first
-        frames: its compiled kernels (:mod:`starid.kernels`) load from numba's cache in
-        ~0.3 s — or, the first time after an install, compile in ~10 s — on their first
+        frames: its compiled kernels (:mod:`starid.kernels`: search, verification, final
+        refit) load from numba's cache in ~1 s — or, the first time after an install unless
+        ``python -m adfusion.starid.kernels`` prepared it, compile in 15–60 s — on their first
         call in a process, and each detection count's pattern order is computed on first
         use. Call it once before a timed or real-time loop. Returns whether a synthetic
         frame (the catalogue seen at a few fixed attitudes) was solved.
