@@ -945,8 +945,9 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
 
 
 def prepare() -> float:
-    """Compile every kernel a lost-in-space solve uses now, into numba's on-disk cache,
-    and return the seconds it took: run once after an install (``python -m
+    """Compile every kernel a solve uses now — lost-in-space and tracking
+    (:mod:`starid.tracking_kernels`) — into numba's on-disk cache, and return the seconds
+    it took: run once after an install (``python -m
     adfusion.starid.kernels``), and the first solve of every later process loads the
     compiled code (~1 s) instead of compiling it (10–40 s). The cache is keyed by the
     source's content (SHA-256), the numba version and the CPU, so it stays valid until
@@ -958,8 +959,10 @@ def prepare() -> float:
     from adfusion.starid.solver import Solver
 
     t0 = time.perf_counter()
-    Solver(Catalog.hipparcos(mag_limit=5.0), Camera.pinhole(1024, 768, 15.0),
-           cache=False).warm_up()
+    solver = Solver(Catalog.hipparcos(mag_limit=5.0), Camera.pinhole(1024, 768, 15.0),
+                    cache=False)
+    solver.warm_up()
+    solver.warm_up_tracking()
     return time.perf_counter() - t0
 
 
