@@ -304,8 +304,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         else:
             return False
         solved = self.solve(pxy[:8]).ok  # the search
-        if self.method == "nstar":  # every detection count's pattern list (~0.1 s)
+        if self.method == "nstar":  # every detection count's pattern lists (~0.1 s)
             for n_det in range(3, self.max_detections + 1):
+                self._pattern_list(n_det, False)  # Renken's, searched first
                 self._pattern_list(n_det, True)
         b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
         table = PairWindows.of(b_all, self.tolerance_rad, 0.0)
