@@ -993,7 +993,7 @@ def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
         return det
     every = det.xy
     if det.rejected:
-        rx, ry = list(zip(*det.rejected))[:2]  # transposed in C, no loop per blob
+        rx, ry = list(zip(*det.rejected, strict=True))[:2]  # transposed in C, not per blob
         every = np.concatenate([every, np.column_stack([rx, ry])])
     count = np.zeros((gh, gw), np.float32)
     np.add.at(count, blocks(every), 1.0)
