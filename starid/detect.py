@@ -568,13 +568,30 @@ def _interpolated_quantile(
     return value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
 
 
+def _median(v: np.ndarray) -> float:
+    """``float(np.median(v))`` by the same arithmetic (the mean of the two middle values in
+    the array's float type, or in float64 for integers; NaN if any is NaN), without its
+    ~20 µs of call overhead — it is called six times per frame on small grids."""
+    a = v.ravel()
+    n = a.size
+    if n == 0 or (a.dtype.kind == "f" and np.isnan(a).any()):
+        return float("nan")
+    k = n // 2
+    if n % 2:
+        return float(np.partition(a, k)[k])
+    part = np.partition(a, (k - 1, k))
+    if a.dtype.kind == "f":
+        return float((part[k - 1] + part[k]) / 2)
+    return (float(part[k - 1]) + float(part[k])) / 2
+
+
 def _grey_step(samples: np.ndarray, integer_dtype: bool) -> int:
     """Grey-level step of the data (1 for plain integers, 16 for 12-bit data stored in 16
     bits), or 0 for continuous data. Float images holding whole numbers count as integer
     data, so that the same values give the same result in any dtype."""
     # The darker half of a few blocks' samples: saturated pixels (off the lattice) never are.
     few = samples[:4].ravel()
-    few = few[few <= np.median(few)]
+    few = few[few <= _median(few)]
     if not integer_dtype:
         if not (np.isfinite(few).all() and np.array_equal(few, np.round(few))):
             return 0
@@ -672,7 +689,7 @@ def _background(img: np.ndarray, block: int) -> tuple[_Grid, np.ndarray, bool]:
     noise2 = np.where(np.isfinite(noise2), noise2, noise).astype(np.float32)
     if min(noise2.shape) >= 3:
         noise2 = cv2.medianBlur(noise2, 3)  # the noise varies slowly; damp estimation scatter
-    floor = max(0.5 * q, 0.25 * float(np.median(noise2)))
+    floor = max(0.5 * q, 0.25 * _median(noise2))
     return grid, np.maximum(noise2, floor), bool(censored.any())
 
 
@@ -909,8 +926,8 @@ def detect(
         mask = _threshold_mask(
             work, bg, bg_grid + sigma * noise_grid, sigma * float(noise_grid.min())
         )
-        background_level = float(np.median(bg_grid)) + offset
-        noise_sigma = float(np.median(noise_grid))
+        background_level = _median(bg_grid) + offset
+        noise_sigma = _median(noise_grid)
     else:
         noise_model = "fixed-threshold"
         bg = None
@@ -987,7 +1004,7 @@ def _clutter_last(det: Detections, noise: np.ndarray, block: int, factor: float,
         return by, bx
 
     by, bx = blocks(det.xy)
-    noisy_block = noise > factor * float(np.median(noise))
+    noisy_block = noise > factor * _median(noise)
     noisy = noisy_block[by, bx]
     if not noisy.any():
         return det

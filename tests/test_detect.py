@@ -812,3 +812,18 @@ def test_the_lower_quartile_is_numpys_percentile():
         assert _lower_quartile(v) == float(np.percentile(v, 25))
     v = np.array([1.0, np.nan, 3.0])
     assert np.isnan(_lower_quartile(v)) and np.isnan(np.percentile(v, 25))
+
+
+def test_the_small_median_is_numpys_median():
+    """The grids' median, computed without np.median's overhead, is exactly
+    float(np.median(v)) for float32/float64/integer arrays of odd and even size, NaN too."""
+    from adfusion.starid.detect import _median
+
+    rng = np.random.default_rng(12)
+    for _ in range(3000):
+        n = int(rng.integers(1, 300))
+        dtype = rng.choice([np.float32, np.float64, np.uint8, np.uint16, np.int32])
+        v = rng.normal(100, 30, n).clip(0, 255).astype(dtype).reshape(1, -1)
+        assert _median(v) == float(np.median(v))
+    v = np.array([[1.0, np.nan], [3.0, 4.0]], np.float32)
+    assert np.isnan(_median(v)) and np.isnan(np.median(v))
