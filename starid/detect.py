@@ -19,8 +19,10 @@
    rounded to 0.1 px), flux, peak; sorted by flux, brightest first.
 
 Only steps 1-2 and the labelling (OpenCV) touch every pixel; the measurements run on the
-bright pixels alone (np.bincount over labels, no per-blob Python loops), which is what makes
-this as fast as the Rust extractor of tetra3rs (see ``benchmarks/bench_detect.py``).
+bright pixels alone (np.bincount over labels, no per-blob Python loops), which brings this
+near the Rust extractor of tetra3rs: cheaper on 1024×768 frames and up, ~1.2–1.7× its CPU
+time at 512², where numpy's per-call cost dominates (``benchmarks/bench_detect.py``,
+docs/benchmarks.md).
 
 Pixel coordinates follow the project convention: 0-based pixel centres, origin at the top-left
 pixel, x to the right, y down, ``image[y, x]``.
@@ -476,8 +478,9 @@ def _quantiles_by_sort16(
     return out[0], out[1]
 
 
-# Integer data spanning fewer grey levels than this take the histogram path (8-bit video,
-# residuals of it): a counting pass instead of a sort, ~8× faster for 240 blocks × 256.
+# Without the SIMD 16-bit sort, integer data spanning fewer grey levels than this take the
+# histogram path (8-bit video, residuals of it): a counting pass instead of a sort, ~8×
+# faster than numpy's plain sort for 240 blocks × 256.
 _HIST_MAX_LEVELS = 1024
 
 
