@@ -122,7 +122,8 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
     cfg = scenario(name, duration_s=duration_s)
     sky = Catalog.hipparcos(mag_limit=cfg.render_mag_limit, epoch=cfg.catalog_epoch)
     cat = Catalog.hipparcos(mag_limit=cfg.solver_mag_limit, epoch=cfg.catalog_epoch)
-    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg))
+    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg),
+                    centroid_sigma_px=cfg.centroid_sigma_px)
     solver.warm_up()
     per_seed, ens, cost = [], {k: [] for k in ESTIMATORS}, None
     t_grid = None

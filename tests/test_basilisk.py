@@ -43,6 +43,9 @@ def test_closed_loop_on_the_camera(short_loop) -> None:
     assert steps[0]["mode"] == "lost-in-space" and steps[0]["accepted"]
     assert all(s["mode"] == "tracking" for s in steps[1:])
     assert all(s["accepted"] for s in steps if s["n_in_view"] >= 3)
+    # lost-in-space on the whole frame, then windows around the predicted stars
+    assert steps[0]["detection"] == "frame"
+    assert all(s["detection"] == "windows" for s in steps[1:])
     # every fix against the renderer's truth: right to well under a pixel (141″)
     assert max(s["fix_error_deg"] for s in steps) * 3600 < 30.0
     # the estimate that closes the loop, against Basilisk's spacecraft state

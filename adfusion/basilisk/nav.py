@@ -28,7 +28,8 @@ payloads.
 
 Every camera frame's and star-tracker sample's :class:`adfusion.StepRecord` is kept in
 ``records`` (with the frame's truth, without its image, and the covariance after the step)
-when ``keep_records``; ``cost_s`` keeps each call's wall time by kind for benchmarks
+when ``keep_records``; ``cost_s`` keeps each call's CPU time (``time.thread_time``: on a
+shared machine the wall time mostly measures the wait for a core) by kind for benchmarks
 (never written to logs: a log must be identical for a seed).
 
 Example (a gyro-only module in a bare Basilisk simulation, IMU messages written by hand):
@@ -69,6 +70,7 @@ from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
 from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.starid import rotations as rot
+from adfusion.starid.detect_roi import TrackingWindows
 
 __all__ = ["AdfusionNav"]
 
@@ -90,6 +92,10 @@ class AdfusionNav(sysModel.SysModel):
             ``omega_BN_B`` (gyro − bias): the gyro's white noise otherwise reaches the
             controller's rate term unfiltered (None: no filter). The attitude is not
             filtered.
+        windows: detect tracking frames in windows around the stars the filter predicts
+            (:class:`adfusion.starid.detect_roi.TrackingWindows`; a dict: its arguments),
+            the whole frame otherwise — lost, a loose prior, too few stars found. False:
+            always the whole frame. Each frame's record says which (``"detection"``).
         estimator_kw: passed to :class:`adfusion.Estimator` (gyro noise, gates, ...).
     """
 
@@ -97,7 +103,7 @@ class AdfusionNav(sysModel.SysModel):
                  q_body_icrs0: ArrayLike | None = None, sigma_attitude0_rad: float = 0.02,
                  st_sigma_rad: float = 1e-4, earth_keepout_deg: float | None = None,
                  keep_records: bool = True, rate_lowpass_hz: float | None = None,
-                 **estimator_kw: Any) -> None:
+                 windows: bool | dict[str, Any] = True, **estimator_kw: Any) -> None:
         super().__init__()
         self.ModelTag = "adfusionNav"
         self.imuInMsg = messaging.IMUSensorMsgReader()
@@ -120,6 +126,11 @@ class AdfusionNav(sysModel.SysModel):
         self.keep_records = bool(keep_records)
         self.rate_lowpass_hz = None if rate_lowpass_hz is None else float(rate_lowpass_hz)
         self._est_kw = dict(estimator_kw)
+        # tracking frames are detected in windows around the predicted stars (full frame
+        # when lost, when the prior is loose or when the windows find too few stars)
+        self.windows = None
+        if solver is not None and windows is not False:
+            self.windows = TrackingWindows(solver, **({} if windows is True else windows))
         self._q0 = None if q_body_icrs0 is None else rot.normalize(q_body_icrs0)
         self._sigma0 = float(sigma_attitude0_rad)
         self.Reset(0)
@@ -142,7 +153,7 @@ class AdfusionNav(sysModel.SysModel):
         self._inputs: dict[str, Any] | None = None  # bound at the first call (see _bind)
 
     def UpdateState(self, CurrentSimNanos: int) -> None:
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
         if self._inputs is None:
             self._bind()
         events = []  # (time ns, order at equal times, kind, data)
@@ -200,7 +211,7 @@ class AdfusionNav(sysModel.SysModel):
         else:
             kinds = {e[2] for e in events}
             kind = "frame" if "frame" in kinds else "st" if "st" in kinds else "mag"
-        self.cost_s[kind].append(time.perf_counter() - t0)
+        self.cost_s[kind].append(time.thread_time() - t0)
 
     def _bind(self) -> None:
         """The linked inputs, the output writers and the payload setters, once after
@@ -248,8 +259,16 @@ class AdfusionNav(sysModel.SysModel):
                                                "not used"))
                 self._keep(rec, fr)
                 return 0
-        rec = self.est.step(t, frame=fr.image)
-        self._keep(rec, fr)
+        det = None
+        if self.windows is not None:
+            prior = self.est.tracking_prior(self.est.exposure_s)
+            if prior is not None:
+                det = self.windows.detect(fr.image, prior)
+        if det is None:
+            rec = self.est.step(t, frame=fr.image)
+        else:
+            rec = self.est.step(t, detections=det)
+        self._keep(rec, fr, "frame" if det is None else "windows")
         return int(rec.fix_accepted)
 
     def _st_step(self, t: float, q_inrtl2case: np.ndarray) -> int:
@@ -278,11 +297,11 @@ class AdfusionNav(sysModel.SysModel):
         self._keep(rec)
         return int(res.accepted)
 
-    def _keep(self, rec: StepRecord, frame=None) -> None:
+    def _keep(self, rec: StepRecord, frame=None, detection: str | None = None) -> None:
         if self.keep_records:
             # the frame's truth without its image (a 10-minute run's images would be GBs)
             light = None if frame is None else replace(frame, image=None)
-            self.records.append({"rec": rec, "frame": light,
+            self.records.append({"rec": rec, "frame": light, "detection": detection,
                                  "P": None if self.est.filter is None
                                  else np.array(self.est.filter.P)})
 

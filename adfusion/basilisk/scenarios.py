@@ -124,6 +124,13 @@ class AcsConfig:
     slew_deg: float = 20.0
     initial_error_deg: float = 0.1
     rate_lowpass_hz: float | None = None  # on adfusion's output rate (AdfusionNav)
+    # tracking frames detected in windows around the predicted stars (AdfusionNav.windows)
+    windows: bool = True
+    # star-fix covariance multiplier of the camera estimator (Estimator.fix_covariance_scale)
+    fix_covariance_scale: float = 4.0
+    # the solver's 1-σ centroid error (Solver.centroid_sigma_px; its fixes' covariance
+    # grows with the fit's residuals above it)
+    centroid_sigma_px: float = 0.5
     # inertialUKF process noise, 1-σ per step of [MRP, rate (rad/s)]
     ukf_process_sigma: tuple[float, float] = (1.25e-6, 1e-6)
     # spacecraft and control
@@ -452,7 +459,7 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
                                           epoch=cfg.catalog_epoch))
         camera = Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg)
         if solver is None:
-            solver = Solver(catalogs[1], camera)
+            solver = Solver(catalogs[1], camera, centroid_sigma_px=cfg.centroid_sigma_px)
         cam_mod = StarCameraModule(camera, catalogs[0], q_body_cam_true,
                                    sensor=SensorModel(psf_sigma_px=1.2, noise="gaussian"),
                                    exposure_s=cfg.exposure_s, seed=s_cam,
@@ -477,8 +484,10 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     navs: dict[str, AdfusionNav] = {}
     if use_camera:
         nav_cam = AdfusionNav(solver, cam_mod, q_body_cam_fsw,
+                              fix_covariance_scale=cfg.fix_covariance_scale,
                               earth_keepout_deg=cfg.earth_keepout_deg,
-                              rate_lowpass_hz=cfg.rate_lowpass_hz, **est_kw)
+                              rate_lowpass_hz=cfg.rate_lowpass_hz, windows=cfg.windows,
+                              **est_kw)
         nav_cam.ModelTag = "adfusionCamera"
         nav_cam.imuInMsg.subscribeTo(imu.sensorOutMsg)
         nav_cam.tamInMsg.subscribeTo(tam.tamDataOutMsg)
@@ -632,6 +641,7 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
                 "blinded": fr.blinded, "mode": rec.star_mode, "ok": rec.star_ok,
                 "accepted": rec.fix_accepted, "n_stars": rec.n_stars,
                 "skipped": any("keep-out" in why for _, why in rec.rejected),
+                "detection": r.get("detection"),
                 "fix_error_deg": err_deg,
                 "sol_sigma_deg": None if sol is None or not sol.ok else
                 float(np.degrees(np.sqrt(np.max(np.linalg.eigvalsh(sol.covariance))))),
