@@ -36,7 +36,7 @@ def field():
 def test_windows_centroid_isolated_stars_and_say_why_not_the_others(field):
     img, stars = field
     names = ["isolated", "pair_a", "pair_b", "edge", "faint"]
-    pred = np.array([stars[k][:2] for k in names]) + [0.4, -0.3]  # a prior 0.5 px off
+    pred = np.array([stars[k][:2] for k in names]) + np.array([0.4, -0.3])  # 0.5 px off
     pred = np.vstack([pred, [[130.0, 100.0], [24.5, 101.6]]])  # empty sky; the trail
     det = detect_windows(img, pred, 6, isolation_px=6.0)
     truth = np.array([stars["isolated"][:2], stars["faint"][:2]])
