@@ -137,6 +137,7 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
     solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg),
                     centroid_sigma_px=cfg.centroid_sigma_px)
     solver.warm_up()
+    solver.warm_up_tracking()  # the compiled tracking path, before the loop
     per_seed, ens, cost = [], {k: [] for k in ESTIMATORS}, None
     t_grid = None
     for seed in range(seeds):
