@@ -124,9 +124,37 @@ def _cost(run, frame_images) -> dict[str, Any]:
         cost["starid.detect alone, whole frame (same frames)"] = _us(ts)
     if tw_ts:
         cost["starid.detect_roi TrackingWindows.detect alone (same frames)"] = _us(tw_ts)
+    cost["adfusion module alone, gyro-only UpdateState (hot loop, as Basilisk's below)"] = \
+        _us(_gyro_loop_cost(run))
     cost.update({f"Basilisk {k}.UpdateState (from Python)": v
                  for k, v in _module_cost(run).items()})
     return cost
+
+
+def _gyro_loop_cost(run, n: int = 2000) -> list[float]:
+    """A star-tracker AdfusionNav's gyro-only UpdateState called in a loop, each call on a
+    new IMU sample (the run's gyro rates): the same conditions as Basilisk's modules in
+    :func:`_module_cost` (inside the run the call follows rendering and frame work, and
+    pays for the caches they evicted)."""
+    from Basilisk.architecture import messaging
+
+    from adfusion.basilisk import AdfusionNav
+    from adfusion.basilisk.msgio import author
+
+    cfg = run.config
+    nav = AdfusionNav(q_body_icrs0=run.q_true[0], arw_rad_sqrt_s=cfg.arw_rad_sqrt_s,
+                      rrw_rad_s_sqrt_s=1e-8, keep_records=False)
+    msg = messaging.IMUSensorMsg()
+    nav.imuInMsg.subscribeTo(msg)
+    write = author(msg)
+    imu = messaging.IMUSensorMsgPayload()
+    rates = np.asarray(run.gyro["omega"])
+    nav.Reset(0)
+    for k in range(1, n + 1):
+        imu.AngVelPlatform = rates[k % len(rates)].tolist()
+        write(imu, 0, k * 100_000_000)
+        nav.UpdateState(k * 100_000_000)
+    return nav.cost_s["gyro"]
 
 
 def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s: float = 150.0,
