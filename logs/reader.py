@@ -216,6 +216,12 @@ class McapLogReader:
         self._lazy = False  # chunks checked when read (the summary vouched for the layout)
         self._walked_index: list[ChunkIndex] = []
         self._walked_count: int | None = None
+        # after a corrupt chunk whose record length was taken on trust (a cut-out span
+        # makes it point into the middle of a later chunk), records that carry no
+        # checksum are not used until a chunk passes its CRC again: garbage parsed as a
+        # top-level message record was once delivered as a message (benchmarks/fuzz.py)
+        self._suspect_since: int | None = None
+        self._suspect_skipped = 0
         self._reported: set[tuple[int, str]] = set()
         self._raw_metadata: dict[str, tuple[int, dict[str, str]]] = {}
         self._undecodable: dict[str, tuple[int, str]] = {}  # topic → (count, first reason)
@@ -280,6 +286,7 @@ class McapLogReader:
                     self._take(channel)
                 self.stated_message_count = summary.message_count
             self._walk(f, size, summary)
+        self._end_suspect()
         self._cross_check(summary)
 
     def _read_summary(self, f: Any, size: int) -> _Summary | None:
@@ -454,6 +461,8 @@ class McapLogReader:
                 reason = f"corrupt {name}: {type(exc).__name__}: {exc}"
                 if opcode == Opcode.CHUNK:  # its record is intact: the next one follows
                     self._report(pos, reason, resumed_at=following)
+                    if self._suspect_since is None:
+                        self._suspect_since = pos
                     pos, last_chunk = following, None
                     continue
                 nxt = self._lost(f, pos, end, summary, reason)
@@ -507,13 +516,27 @@ class McapLogReader:
             self._report(-1, f"the file states {stated} messages, {self.message_count} "
                          "could be read", lost_messages=stated - self.message_count)
 
+    def _end_suspect(self) -> None:
+        if self._suspect_since is not None and self._suspect_skipped:
+            self._report(self._suspect_since, f"{self._suspect_skipped} record(s) without a "
+                         "checksum after this corrupt chunk, before the next intact one: not "
+                         "used (they may be the damaged chunk's bytes)",
+                         lost_messages=None, stacklevel=4)
+        self._suspect_since, self._suspect_skipped = None, 0
+
     def _parse(self, opcode: int, body: bytes, offset: int) -> bool:
         """Take one top-level record; ``True`` at the footer. The summary section is walked too
         (its records repeat what the data section held), so a cut there is reported exactly."""
         stream = ReadDataStream(io.BytesIO(body))
+        if self._suspect_since is not None and opcode in (
+                Opcode.MESSAGE, Opcode.SCHEMA, Opcode.CHANNEL):
+            self._suspect_skipped += 1
+            return False
         if opcode == Opcode.CHUNK:
             chunk = Chunk.read(stream)
             records = breakup_chunk(chunk, validate_crc=True)
+            if chunk.uncompressed_crc:  # checked: what follows is in step again
+                self._end_suspect()
             times = []
             for record in records:
                 if isinstance(record, McapMessage):

@@ -191,3 +191,31 @@ def test_messages_outside_their_chunks_times_are_reported_not_misordered(log, tm
     lost = _total(chunks) - len(msgs)
     assert lost > 0 and sum(p.lost_messages or 0 for p in reader.problems) >= lost
     assert warned
+
+
+def test_bytes_after_a_cut_short_chunk_are_not_taken_for_messages(log, tmp_path):
+    """A span cut out of a chunk leaves its record length pointing into a later chunk; the
+    bytes found there were walked as top-level records, and one that parsed as a message
+    record was delivered — a message the file never held (the fuzz run: "cutout at
+    4070+1659"). Until a chunk passes its CRC again, records without a checksum are not
+    used, and that is reported."""
+    import struct
+
+    path, data, chunks = log
+    k = 2
+    start, end, _ = chunks[k]
+    cut = 600
+    bad = bytearray(data[:start + 200] + data[start + 200 + cut:])
+    # where the walk resumes: the damaged chunk's stated end, now inside chunk k + 1
+    at = end
+    channel_id = next(iter(McapLogReader(path).channels))
+    payload = b'{"omega": [9.0, 9.0, 9.0]}'
+    forged = struct.pack("<BQHIQQ", 0x05, 22 + len(payload), channel_id, 0, 7, 7) + payload
+    bad[at:at + len(forged)] = forged
+    broken = tmp_path / "cut.mcap"
+    broken.write_bytes(bytes(bad))
+    reader, msgs, _warned = _read(broken)
+    assert not any(m.t_s == 7e-9 for m in msgs), "a forged message was delivered"
+    intact = {(m.topic, m.t_s) for m in McapLogReader(path)}
+    assert {(m.topic, m.t_s) for m in msgs} <= intact
+    assert any("without a checksum" in p.reason for p in reader.problems), reader.problems
