@@ -12,6 +12,10 @@ accepted fix moving no corner of the frame by more than 5 px against the truth),
 fixes accepted (0 is the requirement), and solve time median / p95 / max
 (``Solution.time_s``, inside the call), best median of ``--rounds`` interleaved rounds; the
 lost-in-space time on the same detections is given as the ratio the prior buys.
+``filter_numpy`` runs the filter's priors through the numpy tracking path (what the
+compiled path of :mod:`starid.tracking_kernels` replaces; the same outcomes,
+``benchmarks/tracking_identical.py``), interleaved with the rest: its ratio to
+``filter`` is the compiled path's speed-up in the same load.
 
 Usage (from the repository root)::
 
@@ -27,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -62,6 +67,13 @@ class _Recorder(Solver):
         return super().solve(detections, prior=prior)
 
 
+class _NumpyTracking(Solver):
+    """The solver with tracking in numpy only (the path before the compiled one)."""
+
+    def _solve_tracking(self, xy, prior, t0):
+        return self._track_numpy(xy, prior, t0)
+
+
 def _frames(duration_s: float, seed: int) -> tuple[Solver, list[dict[str, Any]]]:
     sc = oedipus(duration_s=duration_s, seed=seed, render=True)
     cat = starid.Catalog.hipparcos(mag_limit=5.5, epoch=sc.config["catalog"]["epoch"])
@@ -90,10 +102,15 @@ def _synthetic_prior(q_true: np.ndarray, sigma_deg: float, rng) -> Prior:
 
 def run(duration_s: float = 10.0, rounds: int = 5, seed: int = 1) -> dict[str, Any]:
     """Run the benchmark; returns the JSON-able result."""
+    load_start = list(os.getloadavg())
     solver, frames = _frames(duration_s, seed)
+    solver.warm_up()
+    solver.warm_up_tracking()
+    numpy_solver = _NumpyTracking(solver.catalog, solver.camera, centroid_sigma_px=0.5)
     rng = np.random.default_rng(seed)
     priors = {
         "filter": [f["prior"] for f in frames],
+        "filter_numpy": [f["prior"] for f in frames],
         "sigma_0.05": [_synthetic_prior(f["q_true"], 0.05, rng) for f in frames],
         "sigma_0.2": [_synthetic_prior(f["q_true"], 0.2, rng) for f in frames],
         "lost_in_space": [None] * len(frames),
@@ -108,7 +125,8 @@ def run(duration_s: float = 10.0, rounds: int = 5, seed: int = 1) -> dict[str, A
             for f, prior in zip(frames, priors[name], strict=True):
                 if prior is None and name != "lost_in_space":
                     continue  # the estimator had no filter yet (first frame)
-                sol = solver.solve(f["xy"], prior=prior)
+                s = numpy_solver if name == "filter_numpy" else solver
+                sol = s.solve(f["xy"], prior=prior)
                 ts.append(sol.time_s)
                 used += 1
                 if sol.ok:
@@ -127,17 +145,20 @@ def run(duration_s: float = 10.0, rounds: int = 5, seed: int = 1) -> dict[str, A
             "p95_ms": 1e3 * float(np.percentile(best, 95)),
             "max_ms": 1e3 * float(np.max(best)),
         }
-        if name == "filter":
+        if name in ("filter", "filter_numpy"):
             sig = [p.sigma_deg for p in priors["filter"] if p is not None]
             out[name]["prior_sigma_deg_median"] = float(np.median(sig))
     lis = out["lost_in_space"]["median_ms"]
-    for name in ("filter", "sigma_0.05", "sigma_0.2"):
+    for name in ("filter", "filter_numpy", "sigma_0.05", "sigma_0.2"):
         out[name]["speed_up_vs_lost_in_space"] = lis / out[name]["median_ms"]
+    out["filter"]["speed_up_vs_numpy"] = out["filter_numpy"]["median_ms"] / out["filter"][
+        "median_ms"]
     return {
         "benchmark": "tracking star identification",
         "scenario": f"oedipus(duration_s={duration_s}, seed={seed}), rendered + detect",
         "detections_median": float(np.median([len(f["xy"]) for f in frames])),
         "rounds": rounds,
+        "loadavg_start": load_start,  # machine.loadavg is at the end
         "machine": machine_info(),
         "conditions": out,
     }
@@ -148,8 +169,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=10.0, help="flight seconds (30 fps)")
     p.add_argument("--rounds", type=int, default=5, help="interleaved timing rounds")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--json", type=Path, default=None,
+                   help="also write the result here (e.g. benchmarks/results/tracking.json)")
     a = p.parse_args(argv)
-    print(json.dumps(run(a.duration, a.rounds, a.seed), indent=2))
+    doc = run(a.duration, a.rounds, a.seed)
+    text = json.dumps(doc, indent=2)
+    print(text)
+    if a.json is not None:
+        a.json.write_text(text + "\n")
     return 0
 
 

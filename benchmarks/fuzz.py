@@ -31,7 +31,15 @@ def main(argv: list[str] | None = None) -> int:
     from adfusion.app.fuzz import run
 
     warnings.simplefilter("ignore")
+    from adfusion.bench.machine import code_version, machine_info
+
+    version = code_version()  # before the run: the code that ran, not the code after it
     result = run(args.minutes, seed=args.seed, folder=args.folder)
+    result["command"] = (f"python -P benchmarks/fuzz.py --minutes {args.minutes:g} "
+                         f"--seed {args.seed}")
+    result["commit"] = version["git_commit"] + ("+dirty" if version["git_dirty"] else "") \
+        if version["git_commit"] else None
+    result["machine"] = machine_info()
     text = json.dumps(result, indent=2)
     print(text)
     if args.out:

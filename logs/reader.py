@@ -421,6 +421,17 @@ class McapLogReader:
             try:
                 if opcode == Opcode.CHUNK and self._lazy:
                     start_ns, end_ns = _CHUNK_TIMES.unpack(f.read(_CHUNK_TIMES.size))
+                    # the header's times lie outside the chunk's CRC: a damaged time once
+                    # sorted a whole chunk last (out of time order, unreported); the
+                    # summary's chunk index (CRC-checked with the summary) is the check
+                    ci = summary.chunks.get(pos) if summary is not None else None
+                    if ci is not None and (start_ns, end_ns) != (ci.message_start_time,
+                                                                 ci.message_end_time):
+                        self._report(pos, f"chunk header's message times ({start_ns}, "
+                                     f"{end_ns} ns) disagree with the chunk index "
+                                     f"({ci.message_start_time}, {ci.message_end_time} ns):"
+                                     " header damaged, the index's used")
+                        start_ns, end_ns = ci.message_start_time, ci.message_end_time
                     if start_ns > end_ns:
                         raise ValueError(f"message times {start_ns} > {end_ns}")
                     last_chunk = _ChunkRef(pos, length, start_ns, end_ns)
@@ -693,6 +704,7 @@ class McapLogReader:
         nxt = 0
         delivered = 0
         orphans: dict[int, int] = {}  # channel id → messages whose channel is unknown
+        last_ns, late = -1, 0
         with open(self.path, "rb") as f, ThreadPoolExecutor(1, "mcap-read") as pool:
             loader = _ChunkLoader(f.fileno())
             loads = deque(pool.submit(loader.records, ref) for ref in pending[:_PREFETCH])
@@ -707,6 +719,13 @@ class McapLogReader:
                     except Exception as exc:
                         self._broken_chunk(ref, exc)
                         continue
+                    outside = [m for m in msgs
+                               if not ref.start_ns <= m.log_time <= ref.end_ns]
+                    if outside:  # its place in the merge is wrong: the order breaks
+                        self._report(ref.offset, f"{len(outside)} message(s) of the chunk lie"
+                                     f" outside its stated times ({ref.start_ns}, "
+                                     f"{ref.end_ns} ns): chunk header or index damaged",
+                                     stacklevel=3)
                     if ref.expected is not None and len(msgs) != ref.expected:
                         self._report(ref.offset, f"chunk holds {len(msgs)} messages, its "
                                      f"message index lists {ref.expected}", stacklevel=3)
@@ -715,13 +734,21 @@ class McapLogReader:
                         heapq.heappush(heap, (m.log_time, ref.offset, i, m))
                 if not heap:
                     break
-                _, _, _, record = heapq.heappop(heap)
+                t_ns, _, _, record = heapq.heappop(heap)
+                if t_ns < last_ns:  # from a chunk merged too late (reported above)
+                    late += 1
+                    continue
+                last_ns = t_ns
                 delivered += 1
                 channel = self.channels.get(record.channel_id)
                 if channel is not None:
                     yield channel, record
                 else:
                     orphans[record.channel_id] = orphans.get(record.channel_id, 0) + 1
+        if late:
+            self._report(-1, f"{late} message(s) came after later ones (a chunk's stated "
+                         "times were damaged): skipped to keep time order",
+                         lost_messages=late, stacklevel=3)
         if orphans:
             n = sum(orphans.values())
             self._report(-1, f"{n} message(s) on channel(s) {sorted(orphans)} whose channel "

@@ -16,7 +16,13 @@ import time
 
 import numpy as np
 from adfusion.starid import rotations as rot
-from adfusion.starid.attitude import refine_streaked, streak_vectors, wahba_near, wahba_unit
+from adfusion.starid.attitude import (
+    WahbaSolution,
+    refine_streaked,
+    streak_vectors,
+    wahba_near,
+    wahba_unit,
+)
 from adfusion.starid.camera import Camera
 from adfusion.starid.solution import Candidate, Prior, Solution
 from adfusion.starid.verify import binomial_tail, one_to_one, rotation_from_pairs, variance_factor
@@ -28,10 +34,38 @@ __all__ = ["Tracking", "corner_sigma_px", "pair_within"]
 # Gates wider than this many match radii let a two-star fit turn the frame far enough to
 # pair a false detection with some catalogue star: the chance is then bounded separately.
 _LOOSE_GATE = 4.0
+# the compiled prediction scans the whole catalogue up to this size (2 µs for 3000 stars),
+# beyond it the solver's cached cone; its cone test is this much wider than the frame's
+# (a superset: the frame test decides)
+_SCAN_ALL_MAX = 20_000
+_CONE_SLACK = math.radians(2.0)
+_NO_ROWS = np.zeros(0, dtype=np.int64)
+_NO_SMEAR = np.zeros(3)
 
 
 class Tracking:
     """The tracking half of :class:`starid.Solver` (a mixin)."""
+
+    def warm_up_tracking(self) -> bool:
+        """Load the compiled tracking path (:mod:`starid.tracking_kernels`) now rather than
+        in the first tracked frame: ~0.1 s from numba's cache, or — the first time after
+        an install or an edit — ~5 s of CPU compiling it once. Call it (with
+        :meth:`Solver.warm_up`, which loads the lost-in-space kernels) before a real-time
+        loop. Returns whether a synthetic tracked frame (the catalogue seen at a fixed
+        attitude, told to the solver as a 0.01° prior) was accepted.
+
+        >>> from adfusion import starid
+        >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
+        ...                   starid.Camera.pinhole(512, 480, 25.84))
+        >>> s.warm_up_tracking()
+        True
+        """
+        for dec in (0.5, -0.5, 1.2, -1.2, 0.0):
+            q = rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0)
+            pxy, _, idx = self._project_idx(q, self.camera)
+            if len(idx) >= 3:
+                return self.solve(pxy[:10], prior=Prior(q, 0.01)).ok
+        return False
 
     def _pairings_that_fit(self, b: NDArray, xy: NDArray, pred_xy: NDArray,
                            pred_idx: NDArray, gate_px: float) -> int:
@@ -64,10 +98,77 @@ class Tracking:
         predicted stars by accident, times the number of alternative pairings the wide
         gates allowed.
 
-        This runs once per frame in a filter loop with a few dozen stars, so it is written
-        for numpy's per-call overhead: a cached catalogue cone, one brute-force distance
-        matrix instead of a KD-tree, and no intermediate copies of the result.
+        This runs once per frame in a filter loop with a few dozen stars. A tight prior
+        with an undistorted pinhole camera (a running filter's steady state) takes the
+        compiled path (:mod:`starid.tracking_kernels`: prediction, association and fit in
+        three calls); everything else the numpy path, written for numpy's per-call
+        overhead (a cached catalogue cone, one brute-force distance matrix instead of a
+        KD-tree). Both give the same outcome (benchmarks/tracking_identical.py,
+        tests/test_tracking_kernels.py).
         """
+        cam = self.camera
+        gate_rad = math.radians(prior.k * prior.sigma_deg)
+        tight = self._match_radius_px()
+        wide = max(gate_rad / cam.pixel_scale_rad * 1.2 + tight, tight)
+        if wide <= 2.5 * tight and cam._ideal_pinhole is not None:
+            sol = self._track_compiled(xy, prior, gate_rad, tight, wide, t0)
+            if sol is not None:
+                return sol
+        return self._track_numpy(xy, prior, t0)
+
+    def _track_compiled(self, xy: NDArray, prior: Prior, gate_rad: float, tight: float,
+                        wide: float, t0: float) -> Solution | None:
+        """The tight prior's path for an undistorted pinhole, compiled; None when a fit's
+        directions are collinear (the numpy path then says so in its words)."""
+        from adfusion.starid import tracking_kernels as tk  # compiled on first use
+
+        cam = self.camera
+        q0 = prior.q_cam_icrs
+        R0 = rot.to_matrix(q0)
+        M1, off, A, c = cam._ideal_pinhole
+        # (N, 3) input with flux leaves a strided view: one memory layout, one compilation
+        xy = np.ascontiguousarray(xy)
+        half = 0.5 * math.radians(cam.diagonal_fov_deg) + gate_rad + 1e-3
+        m = -gate_rad / cam.pixel_scale_rad
+        rows, all_rows = self._tracking_rows(R0[2], half)
+        pred_xy, pred_idx, b_all = tk.predict_pinhole(
+            self.vectors, rows, all_rows, R0, A, c, math.cos(min(half + _CONE_SLACK, math.pi)),
+            -0.5 + m, cam.width - 0.5 - m, cam.height - 0.5 - m, xy, M1, off)
+        if len(pred_xy) < 2:
+            return Solution(False, f"{len(pred_xy)} catalogue star(s) predicted in view",
+                            mode="tracking")
+        j, n_within, d = tk.nearest_detections(pred_xy, xy, wide)
+        n_hit = int(np.count_nonzero(n_within))
+        if n_hit < 2:
+            return Solution(False, f"{n_hit} predicted star(s) with a detection in the gate",
+                            mode="tracking")
+        # alternative pairings inside the wide gates (1 each when the prior is tight)
+        n_hyp = 2.0 ** int(np.count_nonzero(n_within >= 2))
+        pix_rad = cam.pixel_scale_rad
+        sigma = self.centroid_sigma_px * pix_rad
+        smear = prior.smear_cam_rad
+        status, det_i, cat_i, b_use, q, P, res, loss, longest2 = tk.tight_fix(
+            pred_idx, j, n_within, d, b_all, self.vectors, q0, sigma, tight * pix_rad,
+            _NO_SMEAR if smear is None else smear)
+        if status == tk.FIT_FEW:
+            return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
+                            mode="tracking")
+        if status == tk.FIT_COLLINEAR:
+            return None
+        return self._tracking_fix(xy, prior, pred_xy, pred_idx, n_hyp, det_i, cat_i, b_use,
+                                  WahbaSolution(q, P, res, loss), tight, wide, t0,
+                                  longest2=longest2)
+
+    def _tracking_rows(self, axis: NDArray, half_rad: float) -> tuple[NDArray, bool]:
+        """The catalogue rows the prediction looks at: all of them for a catalogue small
+        enough to scan (a few µs compiled, cheaper than a KD-tree query of a cone), else
+        the solver's cached cone around ``axis``."""
+        if len(self.vectors) <= _SCAN_ALL_MAX:
+            return _NO_ROWS, True
+        return self._cone(axis, half_rad)[0], False
+
+    def _track_numpy(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
+        """:meth:`_solve_tracking` in numpy, for every prior and camera."""
         cam = self.camera
         q0 = prior.q_cam_icrs
         gate_rad = math.radians(prior.k * prior.sigma_deg)
@@ -142,14 +243,34 @@ class Tracking:
             if 2 <= n_keep < len(keep):
                 det_i, cat_i, b_use = det_i[keep], cat_i[keep], b_use[keep]
                 w = wahba_near(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma)
-            whole = self.whole_streak_px * pix_rad
-            if prior.smear_cam_rad is not None and _norm3(prior.smear_cam_rad) > whole:
-                v = streak_vectors(b_use, prior.smear_cam_rad)
-                if float(np.einsum("ij,ij->i", v, v).max()) > whole * whole:
-                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma,
-                                        prior.smear_cam_rad, whole)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
+        return self._tracking_fix(xy, prior, pred_xy, pred_idx, n_hyp, det_i, cat_i, b_use,
+                                  w, tight, wide, t0)
+
+    def _tracking_fix(self, xy: NDArray, prior: Prior, pred_xy: NDArray, pred_idx: NDArray,
+                      n_hyp: float, det_i: NDArray, cat_i: NDArray, b_use: NDArray,
+                      w: WahbaSolution, tight: float, wide: float, t0: float,
+                      longest2: float | None = None) -> Solution:
+        """The fit's last steps and the verdict, for both paths: the streak model, the
+        gate and corner-σ checks, ``p_false``. ``longest2`` is the longest streak² (rad²)
+        of the stars under the prior's smear, when the caller has it."""
+        cam = self.camera
+        q0 = prior.q_cam_icrs
+        gate_rad = math.radians(prior.k * prior.sigma_deg)
+        pix_rad = cam.pixel_scale_rad
+        sigma = self.centroid_sigma_px * pix_rad
+        whole = self.whole_streak_px * pix_rad
+        if prior.smear_cam_rad is not None and _norm3(prior.smear_cam_rad) > whole:
+            if longest2 is None:
+                v = streak_vectors(b_use, prior.smear_cam_rad)
+                longest2 = float(np.einsum("ij,ij->i", v, v).max())
+            if longest2 > whole * whole:
+                try:
+                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma,
+                                        prior.smear_cam_rad, whole)
+                except ValueError as e:
+                    return Solution(False, f"tracking fit failed: {e}", mode="tracking")
         offset = float(rot.angle_between(w.q_cam_icrs, q0))
         # trace(P) ≥ its largest eigenvalue: a bound, at most √3 too wide, for free
         sigma_fix = math.sqrt(float(w.covariance.trace()))
@@ -163,7 +284,17 @@ class Tracking:
                                    f"corners > {self.max_fix_sigma_px:g} px (stars too close "
                                    "together, or inconsistent)", mode="tracking")
         p_hit = min(1.0, len(pred_xy) * math.pi * tight**2 / (cam.width * cam.height))
-        p_false = min(1.0, n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
+        n_look = 1.0
+        if wide > _LOOSE_GATE * tight:
+            # look-elsewhere: under a loose prior the shift and roll rounds keep the best of
+            # about (wide/tight)² image offsets × the roll steps the gate spans at the frame's
+            # edge, while the binomial above is the chance of one of them. Without it, 3 of
+            # 50 detections (7 false, a 30° field) fitted near a prior 10° wrong at σ 0.5°:
+            # accepted 10.9° off at p_false 8.9e-5 (benchmarks/fuzz.py).
+            r_edge_px = 0.5 * math.hypot(cam.width, cam.height)
+            n_roll = max(1.0, 2.0 * gate_rad * r_edge_px / tight)  # roll step: tight/r_edge
+            n_look = (wide / tight) ** 2 * n_roll
+        p_false = min(1.0, n_look * n_hyp * binomial_tail(len(det_i), len(xy), p_hit))
         if len(det_i) == 2:
             # two stars fix an attitude whatever they are: every pair of catalogue stars in
             # the prior's cone around the two detections with their separation is an equally

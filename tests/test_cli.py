@@ -54,3 +54,20 @@ def test_errors_are_messages_not_tracebacks(capsys, tmp_path):
     assert "error" in capsys.readouterr().err
     assert main(["solve"]) == 2
     assert main(["simulate", "oedipus", "-o", str(tmp_path / "x.mcap"), "--duration", "0"]) == 2
+
+
+def test_an_undecodable_image_is_one_line_on_stderr(tmp_path):
+    """OpenCV's own log lines (`[ERROR:0@1.1] global grfmt_png.cpp …`) went to the terminal
+    ahead of our message: a broken image is one line on the process's stderr, exit 1."""
+    import os
+    import subprocess
+    import sys
+
+    bad = tmp_path / "broken.png"
+    bad.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00\x00\x00\x0dIHDX" + bytes(40))
+    env = {k: v for k, v in os.environ.items() if k != "OPENCV_LOG_LEVEL"}
+    p = subprocess.run([sys.executable, "-P", "-m", "adfusion.app.cli", "solve", str(bad),
+                        "--fov", "10"], capture_output=True, text=True, timeout=120, env=env)
+    assert p.returncode == 1
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "broken.png" in lines[0], p.stderr

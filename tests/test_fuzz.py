@@ -113,3 +113,13 @@ def test_a_two_star_fix_with_a_false_star_under_a_loose_prior_is_not_accepted():
     bank = fuzz.SolverBank(fovs_deg=(12.0,))
     assert fuzz.check_solver(bank, 2908631232, 12.0, 1, 0.7, 0.1, "prior", 0.0, 0.5) in (
         "ok", "reported")
+
+
+def test_a_three_star_fix_near_a_wrong_loose_prior_is_not_accepted():
+    """The 32-minute fuzz run's wrong attitude (seed 23): a 30° field, a prior 10° wrong at
+    σ 0.5°, 7 false stars among 50 detections; tracking fitted 3 of them near the prior and
+    accepted the fix 10.9° off at p_false 8.9e-5. The shift-and-roll search under a loose
+    prior is counted in p_false (look-elsewhere), so the frame goes to lost-in-space."""
+    bank = fuzz.SolverBank(fovs_deg=(30.0,))
+    assert fuzz.check_solver(bank, 1663394242, 30.0, 7, 0.3, 0.1, "prior", 10.0, 0.5) in (
+        "ok", "reported")

@@ -144,3 +144,50 @@ def test_intact_file_has_no_problem(log):
     reader, msgs, warned = _read(path)
     assert reader.problems == [] and warned == []
     assert len(msgs) == _total(chunks) == reader.message_count == reader.stated_message_count
+
+
+@pytest.mark.parametrize("field", ["start", "end"])
+def test_damaged_chunk_header_times_keep_time_order_and_are_reported(log, tmp_path, field):
+    """The chunk header's message times are outside the chunk CRC: a flipped start or end
+    time once put a whole chunk's messages last (out of time order, nothing reported; found
+    by `benchmarks/fuzz.py`). The chunk index disagrees and is used, and it is said."""
+    _path, data, chunks = log
+    bad = bytearray(data)
+    at = chunks[0][0] + 9 + (4 if field == "start" else 12)  # high bytes of the u64 time
+    for i in range(at, at + 4):
+        bad[i] ^= 0xFF
+    broken = tmp_path / "header.mcap"
+    broken.write_bytes(bytes(bad))
+    reader, msgs, warned = _read(broken)
+    times = [m.t_s for m in msgs]
+    assert times == sorted(times)
+    assert len(msgs) == _total(chunks)  # the records are intact: nothing is lost
+    assert any(p.offset == chunks[0][0] and "chunk index" in p.reason
+               for p in reader.problems), reader.problems
+    assert warned
+
+
+def test_messages_outside_their_chunks_times_are_reported_not_misordered(log, tmp_path):
+    """When the chunk index says the same (a writer that computes no summary CRC, so the
+    damage cannot be told from the truth), a chunk whose stated times do not cover its own
+    messages is reported, and nothing is delivered out of time order."""
+    import struct
+
+    _path, data, chunks = log
+    bad = bytearray(data)
+    times_at = chunks[1][0] + 9
+    late_ns = struct.unpack_from("<Q", data, chunks[4][0] + 9 + 8)[0]  # chunk 4's end
+    idx = bytes(data).rfind(data[times_at:times_at + 16])  # the same pair in the index
+    assert idx > chunks[-1][1]
+    for at in (times_at, idx):  # chunk 1 now claims to start after chunk 4
+        struct.pack_into("<QQ", bad, at, late_ns, late_ns + 1)
+    struct.pack_into("<I", bad, len(bad) - 8 - 4, 0)  # footer: summary CRC "not computed"
+    broken = tmp_path / "both.mcap"
+    broken.write_bytes(bytes(bad))
+    reader, msgs, warned = _read(broken)
+    times = [m.t_s for m in msgs]
+    assert times == sorted(times)
+    assert any("outside its stated times" in p.reason for p in reader.problems)
+    lost = _total(chunks) - len(msgs)
+    assert lost > 0 and sum(p.lost_messages or 0 for p in reader.problems) >= lost
+    assert warned

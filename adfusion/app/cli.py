@@ -12,6 +12,7 @@ Example:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import json
 import math
@@ -358,9 +359,22 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     return p
 
 
+def quiet_opencv() -> None:
+    """OpenCV logs a failed decode itself (``[ERROR:0@1.1] global grfmt_png.cpp …``) ahead
+    of our one-line message: silenced unless the user set ``OPENCV_LOG_LEVEL``."""
+    if "OPENCV_LOG_LEVEL" in os.environ:
+        return
+    os.environ["OPENCV_LOG_LEVEL"] = "OFF"  # read when cv2 is first imported
+    cv2 = sys.modules.get("cv2")  # already imported (an in-process caller)
+    if cv2 is not None:
+        with contextlib.suppress(AttributeError):
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    quiet_opencv()
     try:
         args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
     except SystemExit as e:  # --help (0) or a usage error (2), already printed by argparse
