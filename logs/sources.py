@@ -249,7 +249,7 @@ _GREY8 = int.from_bytes(b"Y800", "little")  # FFmpeg's gray8 pixel format, as Op
 def _open_video(path: str) -> cv2.VideoCapture:
     """``VideoCapture`` of ``path``; a grey 8-bit stream (FFV1 or raw ``Y800`` of a star
     camera) is read as it is decoded, without OpenCV's grey → BGR conversion that
-    :func:`to_grey` would then undo — the same pixels for 0.6 ms less per 512×480 frame.
+    :func:`to_grey` would then undo — the same pixels for 0.5–1 ms less CPU per 512×480 frame.
     Any other stream (colour, YUV, 16-bit) is converted as before: its luma plane is not
     what BGR → grey gives."""
     cap = cv2.VideoCapture(path)
