@@ -200,8 +200,8 @@ def filters_section(doc: dict[str, Any], command: str) -> str:
                          f"{r['frames']} identified, attitude error RMS "
                          f"{r['error_rms_deg']:.3f}°, max {r['error_max_deg']:.3f}°")
     m = doc["machine"]
-    cpus = m.get("cores", m.get("cpus"))
-    lines += ["", f"(Python {m['python']}, numpy {m['numpy']}, {cpus} CPUs, load "
+    cores = m.get("cores", m.get("cpus"))  # "cpus" in records before bench.machine
+    lines += ["", f"(Python {m['python']}, numpy {m['numpy']}, {cores} CPUs, load "
               f"{m['loadavg'][0]:.1f} during the run.)"]
     return "\n".join(lines)
 

@@ -238,8 +238,12 @@ class LostInSpace:
         pix = np.array([cam.pixel_scale_rad for cam in cams])
         radius = self._match_radius_px() * pix
         floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
-        stack = [np.stack(b_cams)] + [np.stack([getattr(t, f) for t in tables])
-                                      for f in ("angles", "tol", "cos_min", "cos_max")]
+        if n_cams == 1:  # views, not copies (the common case: a known camera)
+            stack = [b_cams[0][None]] + [getattr(tables[0], f)[None]
+                                         for f in ("angles", "tol", "cos_min", "cos_max")]
+        else:
+            stack = [np.stack(b_cams)] + [np.stack([getattr(t, f) for t in tables])
+                                          for f in ("angles", "tol", "cos_min", "cos_max")]
         while True:
             sel, rows, q, wp, wi = kernels.search(
                 self._ix, state, pats, plen, self._trial_budget(n_cams), no_match,

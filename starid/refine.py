@@ -35,6 +35,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from adfusion.starid import kernels
 from adfusion.starid import rotations as rot
 from adfusion.starid.attitude import wahba_unit
 from adfusion.starid.calibrate import fit_camera_model
@@ -98,6 +99,11 @@ class Refinement:
             return sol
         cam0: Camera = sol.camera or self.camera
         terms = self._fit_terms()
+        if (terms is None and cam0._ideal_pinhole is not None
+                and getattr(self, "_compiled_refine", False)):
+            out = self._refine_pinhole(sol, xy_all, cam0)
+            if out is not None:
+                return out
         det = np.array([d for d, _ in sol.matches], dtype=np.int64)
         cat = self._catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
         original = set(det.tolist())
@@ -196,6 +202,36 @@ class Refinement:
         return replace(sol, q_cam_icrs=w.q_cam_icrs, matches=matches,
                        covariance=w.covariance, residuals_rad=w.residuals_rad[order],
                        camera=cam, sigma_px=math.sqrt(s2),
+                       note="; ".join(n for n in (sol.note, note) if n))
+
+    def _refine_pinhole(self, sol: Solution, xy_all: NDArray, cam0: Camera) -> Solution | None:
+        """:meth:`_refine` compiled (:func:`starid.kernels.refine_pinhole`) for a camera
+        that is not fitted and has no distortion: the same steps and constants, the same
+        pairs, the fit to ~1e-12 (a Jacobi SVD instead of LAPACK's). None when the cached
+        catalogue cone does not cover an attitude of the refit (the caller runs the Python
+        code then)."""
+        M, off, A, c = cam0._ideal_pinhole
+        det = np.array([d for d, _ in sol.matches], dtype=np.int64)
+        cat = self._catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
+        view_half = 0.5 * math.radians(cam0.diagonal_fov_deg) + 1e-3
+        idx, vec = self._cone(rot.to_matrix(sol.q_cam_icrs)[2], view_half)
+        c_axis, c_half = self._cone_cache[0], self._cone_cache[1]
+        xy = np.ascontiguousarray(xy_all, dtype=np.float64)
+        status, d, k, q, cov, res, sigma_px, rejected = kernels.refine_pinhole(
+            xy, np.isfinite(xy).all(axis=1), det, cat, self.vectors, M, off, A, c,
+            float(cam0.width), float(cam0.height), idx, vec, c_axis, float(c_half),
+            view_half, cam0.pixel_scale_rad, float(self._match_radius_px()),
+            self.centroid_sigma_px, _REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR,
+            float(_PRIOR_DOF))
+        if status < 0:
+            return None
+        if status == 0:
+            return sol
+        order = np.argsort(d)
+        matches = list(zip(d[order].tolist(), self.ids[k[order]].tolist(), strict=True))
+        note = f"{rejected} pair(s) rejected by the residuals" if rejected else ""
+        return replace(sol, q_cam_icrs=q, matches=matches, covariance=cov,
+                       residuals_rad=res[order], camera=cam0, sigma_px=float(sigma_px),
                        note="; ".join(n for n in (sol.note, note) if n))
 
     def _catalog_index(self, ids: NDArray[np.int64]) -> NDArray[np.int64]:

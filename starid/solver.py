@@ -233,6 +233,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self._pattern_lists: dict[tuple[int, ...], tuple] = {}
         # the search runs compiled, except with the matchers kept in numpy
         self._compiled = not (faithful or self.n_bands > 1)
+        # a candidate's verification with a known camera (starid.verify) and the final
+        # refit of a fixed undistorted one (starid.refine) run compiled; False: in Python
+        self._compiled_verify = self._compiled_refine = True
         self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
 
     # --- public -----------------------------------------------------------------------
@@ -280,8 +283,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
 
     def warm_up(self) -> bool:
         """Pay the lost-in-space search's one-time costs now rather than in the first
-        frames: its compiled kernels (:mod:`starid.kernels`) load from numba's cache in
-        ~0.3 s — or, the first time after an install, compile in ~10 s — on their first
+        frames: its compiled kernels (:mod:`starid.kernels`: search, verification, final
+        refit) load from numba's cache in ~1 s — or, the first time after an install unless
+        ``python -m adfusion.starid.kernels`` prepared it, compile in 15–60 s — on their first
         call in a process, and each detection count's pattern order is computed on first
         use. Call it once before a timed or real-time loop. Returns whether a synthetic
         frame (the catalogue seen at a few fixed attitudes) was solved.
@@ -300,8 +304,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         else:
             return False
         solved = self.solve(pxy[:8]).ok  # the search
-        if self.method == "nstar":  # every detection count's pattern list (~0.1 s)
+        if self.method == "nstar":  # every detection count's pattern lists (~0.1 s)
             for n_det in range(3, self.max_detections + 1):
+                self._pattern_list(n_det, False)  # Renken's, searched first
                 self._pattern_list(n_det, True)
         b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
         table = PairWindows.of(b_all, self.tolerance_rad, 0.0)

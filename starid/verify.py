@@ -198,6 +198,21 @@ class Verification:
             b_all = cam.pixels_to_vectors(xy)
         radius = self._match_radius_px() * cam.pixel_scale_rad
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
+        if not self._fov_uncertain and getattr(self, "_compiled_verify", False):
+            from adfusion.starid import kernels  # kernels import this module
+            ok, det_i, cat_i, q, cov, res, p_false = kernels.verify_candidate(
+                self._ix, np.ascontiguousarray(b_all), np.ascontiguousarray(R),
+                float(e_trials), np.ascontiguousarray(det_i, dtype=np.int64),
+                np.ascontiguousarray(cat_i, dtype=np.int64),
+                np.ascontiguousarray(sel, dtype=np.int64),
+                np.ascontiguousarray(assign, dtype=np.int64), len(xy), radius, sigma)
+            if not ok:
+                return None
+            return Candidate(
+                q_cam_icrs=q, matches=list(zip(det_i.tolist(), self.ids[cat_i].tolist(),
+                                               strict=True)),
+                residuals_rad=res, p_false=p_false, n_pattern=len(sel), camera=cam,
+                covariance=cov, _projector=self._project)
         refit = False
         if self._fov_uncertain and len(det_i) >= 4:
             cam = fit_camera_model([(xy[det_i], self.vectors[cat_i])], cam, ("focal",),

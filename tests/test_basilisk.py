@@ -43,6 +43,9 @@ def test_closed_loop_on_the_camera(short_loop) -> None:
     assert steps[0]["mode"] == "lost-in-space" and steps[0]["accepted"]
     assert all(s["mode"] == "tracking" for s in steps[1:])
     assert all(s["accepted"] for s in steps if s["n_in_view"] >= 3)
+    # lost-in-space on the whole frame, then windows around the predicted stars
+    assert steps[0]["detection"] == "frame"
+    assert all(s["detection"] == "windows" for s in steps[1:])
     # every fix against the renderer's truth: right to well under a pixel (141″)
     assert max(s["fix_error_deg"] for s in steps) * 3600 < 30.0
     # the estimate that closes the loop, against Basilisk's spacecraft state
@@ -59,6 +62,38 @@ def test_closed_loop_on_the_camera(short_loop) -> None:
     # the controller holds the target: the 0.1° initial error shrinks
     point = np.degrees(rot.angle_between(run.q_true, run.q_ref))
     assert point[-1] < point[0]
+
+
+def test_refused_gyro_samples_are_recorded_not_dropped() -> None:
+    # the module steps the estimator without a record at the gyro rate: a refused sample
+    # (a glitch over the full scale, a non-finite one) must still be kept with its reason
+    from Basilisk.architecture import messaging
+    from Basilisk.utilities import SimulationBaseClass, macros
+
+    from adfusion.basilisk import AdfusionNav
+
+    sim = SimulationBaseClass.SimBaseClass()
+    sim.CreateNewProcess("p").addTask(sim.CreateNewTask("t", macros.sec2nano(0.1)))
+    nav = AdfusionNav(q_body_icrs0=[1.0, 0.0, 0.0, 0.0])
+    imu_msg = messaging.IMUSensorMsg()
+    nav.imuInMsg.subscribeTo(imu_msg)
+    sim.AddModelToTask("t", nav)
+    sim.InitializeSimulation()
+    rates = [[0.0, 0.0, 0.01]] * 3 + [[50.0, 0.0, 0.0], [0.0, float("nan"), 0.0]] + \
+        [[0.0, 0.0, 0.01]] * 2
+    imu = messaging.IMUSensorMsgPayload()
+    for k, w in enumerate(rates):
+        imu.AngVelPlatform = w
+        imu_msg.write(imu, int(macros.sec2nano(0.1 * k)))
+        sim.ConfigureStopTime(int(macros.sec2nano(0.1 * k)))
+        sim.ExecuteSimulation()
+    assert [(round(t, 6), what) for t, what, _ in nav.gyro_rejected] == [(0.3, "gyro"),
+                                                                         (0.4, "gyro")]
+    assert "gyro_max_rate_rad_s" in nav.gyro_rejected[0][2]
+    assert "not a finite 3-vector" in nav.gyro_rejected[1][2]
+    # the held rate stayed the good one: 0.01 rad/s about z for the 0.6 s
+    angle = np.degrees(4 * np.arctan(np.linalg.norm(nav.navAttOutMsg.read().sigma_BN)))
+    assert abs(angle - np.degrees(0.006)) < 1e-9
 
 
 def test_outage_bridged_and_reacquired_by_tracking() -> None:

@@ -599,14 +599,40 @@ def test_histogram_quantiles_equal_the_sorted_ones():
         data = data.astype(dtype)
         for interpolate_lo in (True, False):
             fast = det._quantiles(data.copy(), step, interpolate_lo)
-            saved, det._HIST_MAX_LEVELS = det._HIST_MAX_LEVELS, 0  # force the sort
+            saved = det._HIST_MAX_LEVELS, det._SIMD_SORT16
+            det._HIST_MAX_LEVELS, det._SIMD_SORT16 = 0, False  # force the plain sort
             try:
                 slow = det._quantiles(data.copy(), step, interpolate_lo)
             finally:
-                det._HIST_MAX_LEVELS = saved
+                det._HIST_MAX_LEVELS, det._SIMD_SORT16 = saved
             np.testing.assert_array_equal(fast[0], slow[0])
             np.testing.assert_array_equal(fast[1], slow[1])
 
+
+
+def test_the_int16_sort_gives_the_histograms_quantiles():
+    """The shifted uint16 sort (the fast path where numpy has a SIMD 16-bit sort) gives
+    exactly the histogram's order statistics and in-level interpolation — also for data
+    whose shift wraps around 2¹⁶ (uint16 near 65535, int32 far from 0)."""
+    from adfusion.starid.detect import _quantiles_by_histogram, _quantiles_by_sort16
+
+    rng = np.random.default_rng(3)
+    for base, dtype in ((0, np.uint8), (60000, np.uint16), (-100000, np.int32),
+                        (2**30, np.int32), (-3, np.int8)):
+        for n in (5, 127, 128, 256):
+            data = (rng.poisson(rng.uniform(2, 60), (20, n)) + base).astype(dtype)
+            if dtype not in (np.uint8, np.int8):
+                data[0, :3] -= 50000  # a 50000-level span: still within uint16 after the shift
+            first, last = int(data.min()), int(data.max())
+            k_med = (n - 1) // 2
+            k_lo = round(0.1587 * (n - 1))
+            for step in (0, 1):
+                for interp in (False, True):
+                    got = _quantiles_by_sort16(data.copy(), first, k_lo, k_med, step, interp)
+                    ref = _quantiles_by_histogram(data.copy(), first, last - first + 1, k_lo,
+                                                  k_med, step, interp)
+                    for g, r in zip(got, ref, strict=True):
+                        np.testing.assert_array_equal(g, r)
 
 # --- issue 14 item 1 and issue 16 item 11: frames from real sensors -------------------------
 
@@ -693,3 +719,111 @@ def test_foreground_clutter_comes_after_the_sky_stars():
     lead = det.xy[:n_sky]
     assert np.mean(lead[:, 0] < 395) >= 0.9
     assert np.mean(plain.xy[:n_sky, 0] < 395) < 0.9  # without it the tree leads
+
+
+def test_diffuse_blobs_come_after_the_stars():
+    """Blobs far broader than the stars (lit leaves, a roof's texture, a coma) with more
+    flux than the stars no longer lead the list — on clean sky, where the clutter test
+    (local noise and crowding) does not see them; a saturated star (flat top, as broad)
+    keeps its place."""
+    img, _, xy = _frame(26, 15, (30, 60), noise=2.0, background=20.0)
+    rng = np.random.default_rng(6)
+    blobs = rng.uniform([40, 40], [SHAPE[1] - 40, SHAPE[0] - 40], (10, 2))
+    yy, xx = np.mgrid[: SHAPE[0], : SHAPE[1]]
+    extra = np.zeros_like(img, dtype=np.float64)
+    for bx, by in blobs:  # peak 12σ, σ 6 px: ~20× a star's flux/peak, and brighter
+        extra += 24.0 * np.exp(-((xx - bx) ** 2 + (yy - by) ** 2) / (2 * 6.0**2))
+    sat_xy = (xy[0] + 0.3).round().astype(int)
+    frame = img + extra
+    frame[sat_xy[1] - 2: sat_xy[1] + 3, sat_xy[0] - 2: sat_xy[0] + 3] = 2000.0  # saturated
+    frame = frame.astype(np.float32)
+    plain = detect(frame, max_diffuseness=None)
+    det = detect(frame)
+    n = len(xy)
+    near_star = lambda p: np.min(np.hypot(*(xy - p).T)) < 3.0  # noqa: E731
+    assert np.mean([near_star(p) for p in plain.xy[:n]]) < 0.5  # without it the blobs lead
+    assert np.mean([near_star(p) for p in det.xy[:n]]) >= 0.9
+    assert np.hypot(*(det.xy[0] - sat_xy)) < 1.0  # the saturated star is still first
+    assert len(det) == len(plain)  # reordered, nothing dropped
+    with pytest.raises(ValueError, match="max_diffuseness"):
+        detect(frame, max_diffuseness=1.0)
+
+
+def test_the_clipped_histogram_gives_the_full_histograms_quantiles():
+    """The background's quantiles from a histogram clipped to where nearly all samples lie
+    are exactly those of the full range and of a plain sort — also for a row (a glow, a
+    dark corner) whose statistics fall on a clipped end and are recomputed."""
+    from adfusion.starid.detect import (
+        _quantiles,
+        _quantiles_by_clipped_histogram,
+        _quantiles_by_histogram,
+    )
+
+    rng = np.random.default_rng(7)
+
+    def check(s):
+        n = s.shape[1]
+        k_med = (n - 1) // 2
+        k_lo = round(0.1587 * (n - 1))
+        first, last = int(s.min()), int(s.max())
+        for interp in (False, True):
+            got = _quantiles_by_clipped_histogram(s.copy(), first, last, k_lo, k_med, 1.0,
+                                                  interp)
+            full = _quantiles_by_histogram(s.copy(), first, last - first + 1, k_lo, k_med,
+                                           1.0, interp)
+            ref = _quantiles(s.astype(np.float64), 1.0, interp)  # the sort path
+            for g, f, r in zip(got, full, ref, strict=True):
+                np.testing.assert_array_equal(g, f)
+                np.testing.assert_allclose(g, r, rtol=0, atol=1e-12)
+        return got
+
+    def frame(rows, dtype):
+        v = rng.normal(rng.uniform(20, 120), rng.uniform(0.7, 5), (rows, 256))
+        stars = rng.random(v.shape) < 0.03
+        v[stars] += rng.uniform(30, 300, stars.sum())
+        v[rng.random(v.shape) < 0.01] = 0  # dead pixels
+        return v
+
+    for dtype in (np.uint8, np.int32):
+        for _ in range(30):
+            v = frame(int(rng.integers(3, 40)), dtype)
+            v[0] += 90.0  # a glow
+            v[1] -= 60.0  # a dark corner
+            s = np.clip(np.round(v), 0, 255).astype(dtype)
+            check(s - int(np.median(s)) if dtype is np.int32 else s)
+    # one glow row among many: beyond the range the clip keeps, so it is recomputed
+    v = frame(800, np.int32)
+    v[0] += 600.0
+    s = np.round(v).astype(np.int32) - 60
+    _, med = check(s)
+    sub = s.ravel()[::37]
+    top = np.sort(sub)[int(0.998 * (sub.size - 1))]
+    assert med[0] > top + 2 and med[0] == pytest.approx(np.median(s[0]), abs=1.0)
+
+
+def test_the_lower_quartile_is_numpys_percentile():
+    """The diffuse-blob reference quartile, computed without np.percentile's overhead, is
+    exactly np.percentile(v, 25) (linear) for 1-30 values of any scale, NaN included."""
+    from adfusion.starid.detect import _lower_quartile
+
+    rng = np.random.default_rng(11)
+    for _ in range(2000):
+        v = rng.lognormal(1, 1, int(rng.integers(1, 31))) * 10 ** rng.uniform(-3, 3)
+        assert _lower_quartile(v) == float(np.percentile(v, 25))
+    v = np.array([1.0, np.nan, 3.0])
+    assert np.isnan(_lower_quartile(v)) and np.isnan(np.percentile(v, 25))
+
+
+def test_the_small_median_is_numpys_median():
+    """The grids' median, computed without np.median's overhead, is exactly
+    float(np.median(v)) for float32/float64/integer arrays of odd and even size, NaN too."""
+    from adfusion.starid.detect import _median
+
+    rng = np.random.default_rng(12)
+    for _ in range(3000):
+        n = int(rng.integers(1, 300))
+        dtype = rng.choice([np.float32, np.float64, np.uint8, np.uint16, np.int32])
+        v = rng.normal(100, 30, n).clip(0, 255).astype(dtype).reshape(1, -1)
+        assert _median(v) == float(np.median(v))
+    v = np.array([[1.0, np.nan], [3.0, 4.0]], np.float32)
+    assert np.isnan(_median(v)) and np.isnan(np.median(v))

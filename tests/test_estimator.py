@@ -104,3 +104,32 @@ def test_steps_are_deterministic(scenario):
     for (ra, _, _), (rb, _, _) in zip(a, b, strict=True):
         assert np.array_equal(ra.q_body_icrs, rb.q_body_icrs)
         assert np.array_equal(ra.sigma_rad, rb.sigma_rad)
+
+
+def test_step_gyro_is_step_without_the_record(scenario):
+    # the gyro-rate fast path must leave the filter bit-identical to step(t, gyro=...) and
+    # refuse the same samples for the same reasons
+    _, _, _, truth, omega_meas = scenario
+    kw = {"q_body_icrs0": truth.q_body_icrs[0], "arw_rad_sqrt_s": np.radians(0.01),
+          "rrw_rad_s_sqrt_s": np.radians(1e-4)}
+    a, b = Estimator(None, **kw), Estimator(None, **kw)
+    omega = omega_meas[:400].copy()
+    omega[100] = [40.0, 0.0, 0.0]  # over the full scale
+    omega[200] = omega[199] + [0.5, 0.0, 0.0]  # a 0.5 rad/s jump in 5 ms
+    omega[300] = [0.0, np.nan, 0.0]
+    times = truth.t[:400].copy()
+    times[350] = times[349] - 1e-3  # backwards
+    for t, g in zip(times, omega, strict=True):
+        rec = a.step(t, gyro=g)
+        refused = b.step_gyro(t, g)
+        assert (refused is None) == (not rec.rejected)
+        if refused is not None:
+            assert [refused] == rec.rejected
+    assert np.array_equal(a.filter.q_body_icrs, b.filter.q_body_icrs)
+    assert np.array_equal(a.filter.P, b.filter.P)
+    assert np.array_equal(a.filter.bias_rad_s, b.filter.bias_rad_s)
+    assert a.t == b.t
+    reasons = [b.step_gyro(times[-1] + 0.1, [0.0, 0.0, 1e3]),
+               b.step_gyro(times[-1] + 0.2, [0.0, 0.0, 0.0, 0.0])]
+    assert reasons[0][0] == "gyro" and "gyro_max_rate_rad_s" in reasons[0][1]
+    assert reasons[1] == ("gyro", "not a finite 3-vector: [0.0, 0.0, 0.0, 0.0]")

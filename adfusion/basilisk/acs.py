@@ -254,8 +254,10 @@ def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
     t0 = time.perf_counter()
     sky = Catalog.hipparcos(mag_limit=cfg.render_mag_limit, epoch=cfg.catalog_epoch)
     cat = Catalog.hipparcos(mag_limit=cfg.solver_mag_limit, epoch=cfg.catalog_epoch)
-    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg))
+    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg),
+                    centroid_sigma_px=cfg.centroid_sigma_px)
     solver.warm_up()
+    solver.warm_up_tracking()  # the compiled tracking path, before the loop
     walls["setup"] = time.perf_counter() - t0
     runs: dict[str, LoopRun] = {}
     for loop in ("adfusion", "truth", "ukf", "adfusion_st"):

@@ -26,6 +26,7 @@ Example (a camera staring from a fixed attitude; no Basilisk simulation needed t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,16 +46,19 @@ R_EARTH_M = 6378137.0
 
 def earth_limb_angle_rad(boresight_icrs: ArrayLike, r_bn_n_m: ArrayLike) -> float:
     """Angle (rad) from a direction to the Earth's limb seen from ``r_bn_n_m`` (negative:
-    the direction hits the Earth).
+    the direction hits the Earth). In floats: it runs every step of the camera and the
+    star-tracker blinding.
 
     >>> round(float(np.degrees(earth_limb_angle_rad([1.0, 0, 0], [7e6, 0, 0]))), 2)
     114.33
     """
-    r = np.asarray(r_bn_n_m, dtype=np.float64)
-    d = np.linalg.norm(r)
-    b = np.asarray(boresight_icrs, dtype=np.float64)
-    to_centre = float(np.arccos(np.clip(-(b @ r) / (np.linalg.norm(b) * d), -1.0, 1.0)))
-    return to_centre - float(np.arcsin(min(R_EARTH_M / d, 1.0)))
+    b1, b2, b3 = (float(c) for c in boresight_icrs)
+    r1, r2, r3 = (float(c) for c in r_bn_n_m)
+    d = math.sqrt(r1 * r1 + r2 * r2 + r3 * r3)
+    nb = math.sqrt(b1 * b1 + b2 * b2 + b3 * b3)
+    c = -(b1 * r1 + b2 * r2 + b3 * r3) / (nb * d)
+    to_centre = math.acos(min(max(c, -1.0), 1.0))
+    return to_centre - math.asin(min(R_EARTH_M / d, 1.0))
 
 
 def is_flooded(image: NDArray, saturated_fraction: float = 0.5) -> bool:

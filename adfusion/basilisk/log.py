@@ -35,6 +35,7 @@ import numpy as np
 from Basilisk.architecture import messaging, sysModel
 
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
+from adfusion.basilisk.msgio import live_view
 from adfusion.logs import LogWriter
 from adfusion.starid import rotations as rot
 
@@ -72,6 +73,7 @@ class McapLogModule(sysModel.SysModel):
         self.images, self.preview_every = images, int(preview_every)
         self._seen = {"imu": -1, "tam": -1}
         self._n_records = 0
+        self._views: dict[str, Any] = {}
         cam = nav.camera.camera
         q_body_cam = nav.q_body_cam
         log.add_metadata("config", config)
@@ -82,31 +84,42 @@ class McapLogModule(sysModel.SysModel):
     def Reset(self, CurrentSimNanos: int) -> None:
         self._seen = {"imu": -1, "tam": -1}
         self._n_records = 0
+        self._views: dict[str, Any] = {}
+
+    def _view(self, name: str, reader: Any) -> Any:
+        """A live view of ``reader``'s payload once it is written (msgio), else None."""
+        view = self._views.get(name)
+        if view is None and reader.isLinked() and reader.isWritten():
+            view = self._views[name] = live_view(reader)
+        return view
 
     def UpdateState(self, CurrentSimNanos: int) -> None:
         log = self.log
         t_now = CurrentSimNanos * 1e-9
-        if self.imuInMsg.isWritten() and self.imuInMsg.timeWritten() != self._seen["imu"]:
+        imu = self._view("imu", self.imuInMsg)
+        if imu is not None and self.imuInMsg.timeWritten() != self._seen["imu"]:
             tw = self.imuInMsg.timeWritten()
             self._seen["imu"] = tw
             t = tw * 1e-9
-            w = self.nav.dcm_PB.T @ np.asarray(self.imuInMsg().AngVelPlatform)
+            w = self.nav.dcm_PB.T @ np.asarray(imu.AngVelPlatform)
             log.write_json("/imu/gyro", t, {"t": t, "omega": w})
-            st = self.scStateInMsg()
+            st = self._view("sc", self.scStateInMsg)
             q = q_body_icrs_from_sigma_bn(st.sigma_BN)
             log.write_json("/truth/state", t_now, {"t": t_now, "q_body_icrs": q,
                                                    "omega": np.asarray(st.omega_BN_B)})
             log.write_attitude("/truth/pose", t_now, q)
-            if self.ukfInMsg.isLinked() and self.ukfInMsg.isWritten():
-                log.write_attitude("/ukf/pose", t_now,
-                                   q_body_icrs_from_sigma_bn(self.ukfInMsg().sigma_BN))
-        if (self.tamInMsg.isWritten() and self.magFieldInMsg.isWritten()
-                and self.tamInMsg.timeWritten() != self._seen["tam"]):
+            ukf = self._view("ukf", self.ukfInMsg)
+            if ukf is not None:
+                log.write_attitude("/ukf/pose", t_now, q_body_icrs_from_sigma_bn(ukf.sigma_BN))
+        tam = self._view("tam", self.tamInMsg)
+        field = self._view("field", self.magFieldInMsg)
+        if tam is not None and field is not None \
+                and self.tamInMsg.timeWritten() != self._seen["tam"]:
             tw = self.tamInMsg.timeWritten()
             self._seen["tam"] = tw
             t = tw * 1e-9
-            b = self.nav.dcm_SB.T @ np.asarray(self.tamInMsg().tam_S) * _NT_PER_T
-            b_ref = np.asarray(self.magFieldInMsg().magField_N) * _NT_PER_T
+            b = self.nav.dcm_SB.T @ np.asarray(tam.tam_S) * _NT_PER_T
+            b_ref = np.asarray(field.magField_N) * _NT_PER_T
             log.write_json("/mag", t, {"t": t, "b_body": b, "b_ref_icrs": b_ref})
         records = self.nav.records
         for r in records[self._n_records:]:

@@ -28,7 +28,8 @@ payloads.
 
 Every camera frame's and star-tracker sample's :class:`adfusion.StepRecord` is kept in
 ``records`` (with the frame's truth, without its image, and the covariance after the step)
-when ``keep_records``; ``cost_s`` keeps each call's wall time by kind for benchmarks
+when ``keep_records``; ``cost_s`` keeps each call's CPU time (``time.thread_time``: on a
+shared machine the wall time mostly measures the wait for a core) by kind for benchmarks
 (never written to logs: a log must be identical for a seed).
 
 Example (a gyro-only module in a bare Basilisk simulation, IMU messages written by hand):
@@ -55,6 +56,7 @@ Example (a gyro-only module in a bare Basilisk simulation, IMU messages written 
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
 from typing import Any
@@ -65,8 +67,10 @@ from numpy.typing import ArrayLike
 
 from adfusion.basilisk.camera import earth_limb_angle_rad, is_flooded
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
+from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.starid import rotations as rot
+from adfusion.starid.detect_roi import TrackingWindows
 
 __all__ = ["AdfusionNav"]
 
@@ -88,6 +92,10 @@ class AdfusionNav(sysModel.SysModel):
             ``omega_BN_B`` (gyro − bias): the gyro's white noise otherwise reaches the
             controller's rate term unfiltered (None: no filter). The attitude is not
             filtered.
+        windows: detect tracking frames in windows around the stars the filter predicts
+            (:class:`adfusion.starid.detect_roi.TrackingWindows`; a dict: its arguments),
+            the whole frame otherwise — lost, a loose prior, too few stars found. False:
+            always the whole frame. Each frame's record says which (``"detection"``).
         estimator_kw: passed to :class:`adfusion.Estimator` (gyro noise, gates, ...).
     """
 
@@ -95,7 +103,7 @@ class AdfusionNav(sysModel.SysModel):
                  q_body_icrs0: ArrayLike | None = None, sigma_attitude0_rad: float = 0.02,
                  st_sigma_rad: float = 1e-4, earth_keepout_deg: float | None = None,
                  keep_records: bool = True, rate_lowpass_hz: float | None = None,
-                 **estimator_kw: Any) -> None:
+                 windows: bool | dict[str, Any] = True, **estimator_kw: Any) -> None:
         super().__init__()
         self.ModelTag = "adfusionNav"
         self.imuInMsg = messaging.IMUSensorMsgReader()
@@ -118,6 +126,11 @@ class AdfusionNav(sysModel.SysModel):
         self.keep_records = bool(keep_records)
         self.rate_lowpass_hz = None if rate_lowpass_hz is None else float(rate_lowpass_hz)
         self._est_kw = dict(estimator_kw)
+        # tracking frames are detected in windows around the predicted stars (full frame
+        # when lost, when the prior is loose or when the windows find too few stars)
+        self.windows = None
+        if solver is not None and windows is not False:
+            self.windows = TrackingWindows(solver, **({} if windows is True else windows))
         self._q0 = None if q_body_icrs0 is None else rot.normalize(q_body_icrs0)
         self._sigma0 = float(sigma_attitude0_rad)
         self.Reset(0)
@@ -128,41 +141,46 @@ class AdfusionNav(sysModel.SysModel):
         self.est = Estimator(self.solver, self.q_body_cam, q_body_icrs0=self._q0,
                              sigma_attitude0_rad=self._sigma0, **self._est_kw)
         self._seen = {"imu": -1, "st": -1, "tam": -1, "frame": -1}
-        self._gyro_body = None
+        self._gyro_body: list[float] | None = None
         self.records: list[dict[str, Any]] = []
+        self.gyro_rejected: list[tuple[float, str, str]] = []  # (t, input, why)
         self.cost_s: dict[str, list[float]] = {"gyro": [], "frame": [], "st": [], "mag": [],
                                                "idle": []}
         self._att = self._filt = None
-        self._rate_lp: np.ndarray | None = None
+        self._rate_lp: list[float] | None = None
         self._q_body_case: np.ndarray | None = None
         self._t_rate: float | None = None
+        self._inputs: dict[str, Any] | None = None  # bound at the first call (see _bind)
 
     def UpdateState(self, CurrentSimNanos: int) -> None:
-        t0 = time.perf_counter()
+        t0 = time.thread_time()
+        if self._inputs is None:
+            self._bind()
         events = []  # (time ns, order at equal times, kind, data)
-        if self.imuInMsg.isLinked() and self.imuInMsg.isWritten():
+        seen = self._seen
+        if self._view("imu") is not None:
             tw = self.imuInMsg.timeWritten()
-            if tw != self._seen["imu"]:
-                self._seen["imu"] = tw
-                w_p = np.asarray(self.imuInMsg().AngVelPlatform, dtype=np.float64)
-                events.append((tw, 0, "gyro", self.dcm_PB.T @ w_p))
+            if tw != seen["imu"]:
+                seen["imu"] = tw
+                w_p = self._views["imu"].AngVelPlatform
+                events.append((tw, 0, "gyro", w_p if self._R_BP is None else
+                               (self._R_BP @ np.asarray(w_p, dtype=np.float64)).tolist()))
         if self.camera is not None and self.camera.latest is not None:
             fr = self.camera.latest
-            if fr.index != self._seen["frame"]:
-                self._seen["frame"] = fr.index
+            if fr.index != seen["frame"]:
+                seen["frame"] = fr.index
                 events.append((fr.t_ns, 1, "frame", fr))
-        if self.stInMsg.isLinked() and self.stInMsg.isWritten():
+        if self._view("st") is not None:
             tw = self.stInMsg.timeWritten()
-            if tw != self._seen["st"]:
-                self._seen["st"] = tw
-                events.append((tw, 2, "st", np.asarray(self.stInMsg().qInrtl2Case)))
-        if (self.tamInMsg.isLinked() and self.tamInMsg.isWritten()
-                and self.magFieldInMsg.isLinked() and self.magFieldInMsg.isWritten()):
+            if tw != seen["st"]:
+                seen["st"] = tw
+                events.append((tw, 2, "st", np.asarray(self._views["st"].qInrtl2Case)))
+        if self._view("tam") is not None and self._view("field") is not None:
             tw = self.tamInMsg.timeWritten()
-            if tw != self._seen["tam"]:
-                self._seen["tam"] = tw
-                b_body = self.dcm_SB.T @ np.asarray(self.tamInMsg().tam_S, dtype=np.float64)
-                b_n = np.asarray(self.magFieldInMsg().magField_N, dtype=np.float64)
+            if tw != seen["tam"]:
+                seen["tam"] = tw
+                b_body = self.dcm_SB.T @ np.asarray(self._views["tam"].tam_S, dtype=np.float64)
+                b_n = np.asarray(self._views["field"].magField_N, dtype=np.float64)
                 events.append((tw, 3, "mag", (b_body, b_n)))
         n_obs = 0
         if len(events) > 1:
@@ -171,7 +189,9 @@ class AdfusionNav(sysModel.SysModel):
             t = tw * 1e-9
             if kind == "gyro":
                 self._gyro_body = data
-                self.est.step(t, gyro=data)
+                refused = self.est.step_gyro(t, data)
+                if refused is not None:
+                    self.gyro_rejected.append((t, *refused))
                 self._filter_rate(t)
             elif kind == "frame":
                 n_obs += self._frame_step(data)
@@ -182,8 +202,8 @@ class AdfusionNav(sysModel.SysModel):
                 n_obs += "mag" in rec.sensors and not any(k == "mag" for k, _ in rec.rejected)
         if events or self._att is None:
             self._write_new(n_obs)
-        self.navAttOutMsg.write(self._att, CurrentSimNanos, self.moduleID)
-        self.filtDataOutMsg.write(self._filt, CurrentSimNanos, self.moduleID)
+        self._write_att(self._att, self.moduleID, CurrentSimNanos)
+        self._write_filt(self._filt, self.moduleID, CurrentSimNanos)
         if not events:
             kind = "idle"
         elif len(events) == 1:
@@ -191,7 +211,32 @@ class AdfusionNav(sysModel.SysModel):
         else:
             kinds = {e[2] for e in events}
             kind = "frame" if "frame" in kinds else "st" if "st" in kinds else "mag"
-        self.cost_s[kind].append(time.perf_counter() - t0)
+        self.cost_s[kind].append(time.thread_time() - t0)
+
+    def _bind(self) -> None:
+        """The linked inputs, the output writers and the payload setters, once after
+        ``Reset`` (Basilisk's subscriptions are made before the simulation initialises).
+        Inputs are then read through live views (:mod:`adfusion.basilisk.msgio`): a
+        payload copy per read, a new writer per write and a checked ``setattr`` per field
+        were most of a gyro step's cost."""
+        readers = {"imu": self.imuInMsg, "st": self.stInMsg, "tam": self.tamInMsg,
+                   "field": self.magFieldInMsg, "trans": self.navTransInMsg}
+        self._inputs = {k: r for k, r in readers.items() if r.isLinked()}
+        self._views: dict[str, Any] = {}
+        dcm_pb = np.asarray(self.dcm_PB, dtype=np.float64)
+        self._R_BP = None if np.array_equal(dcm_pb, np.eye(3)) else dcm_pb.T
+        self._write_att = author(self.navAttOutMsg)
+        self._write_filt = author(self.filtDataOutMsg)
+
+    def _view(self, name: str) -> Any:
+        """The live view of input ``name`` once it is linked and written (else None)."""
+        view = self._views.get(name)
+        if view is None:
+            reader = self._inputs.get(name)
+            if reader is None or not reader.isWritten():
+                return None
+            view = self._views[name] = live_view(reader)
+        return view
 
     # --- pieces ------------------------------------------------------------------------
 
@@ -204,9 +249,9 @@ class AdfusionNav(sysModel.SysModel):
             self._keep(rec, fr)
             return 0
         if self.earth_keepout_rad is not None and self.est.initialized \
-                and self.navTransInMsg.isLinked():
+                and self._view("trans") is not None:
             q = rot.multiply(rot.inverse(self.q_body_cam), self.est.filter.q_body_icrs)
-            limb = earth_limb_angle_rad(rot.to_matrix(q)[2], self.navTransInMsg().r_BN_N)
+            limb = earth_limb_angle_rad(rot.to_matrix(q)[2], self._views["trans"].r_BN_N)
             if limb < self.earth_keepout_rad:
                 rec = self.est.step(t)
                 rec.rejected.append(("camera", f"Earth's limb {np.degrees(limb):.1f}° from "
@@ -214,8 +259,16 @@ class AdfusionNav(sysModel.SysModel):
                                                "not used"))
                 self._keep(rec, fr)
                 return 0
-        rec = self.est.step(t, frame=fr.image)
-        self._keep(rec, fr)
+        det = None
+        if self.windows is not None:
+            prior = self.est.tracking_prior(self.est.exposure_s)
+            if prior is not None:
+                det = self.windows.detect(fr.image, prior)
+        if det is None:
+            rec = self.est.step(t, frame=fr.image)
+        else:
+            rec = self.est.step(t, detections=det)
+        self._keep(rec, fr, "frame" if det is None else "windows")
         return int(rec.fix_accepted)
 
     def _st_step(self, t: float, q_inrtl2case: np.ndarray) -> int:
@@ -244,25 +297,28 @@ class AdfusionNav(sysModel.SysModel):
         self._keep(rec)
         return int(res.accepted)
 
-    def _keep(self, rec: StepRecord, frame=None) -> None:
+    def _keep(self, rec: StepRecord, frame=None, detection: str | None = None) -> None:
         if self.keep_records:
             # the frame's truth without its image (a 10-minute run's images would be GBs)
             light = None if frame is None else replace(frame, image=None)
-            self.records.append({"rec": rec, "frame": light,
+            self.records.append({"rec": rec, "frame": light, "detection": detection,
                                  "P": None if self.est.filter is None
                                  else np.array(self.est.filter.P)})
 
     def _filter_rate(self, t: float) -> None:
-        """The output rate at a gyro sample: gyro − bias, low-passed if asked."""
+        """The output rate at a gyro sample: gyro − bias, low-passed if asked (floats: this
+        runs at the gyro rate)."""
         f = self.est.filter
         if f is None:
             return
-        w = self._gyro_body - np.asarray(f.bias_rad_s, dtype=np.float64)
+        bx, by, bz = f.bias_rad_s.tolist()
+        gx, gy, gz = self._gyro_body
+        w = [gx - bx, gy - by, gz - bz]
         if self.rate_lowpass_hz is None or self._rate_lp is None or self._t_rate is None:
             self._rate_lp = w
         else:
-            a = 1.0 - np.exp(-2.0 * np.pi * self.rate_lowpass_hz * max(t - self._t_rate, 0.0))
-            self._rate_lp = self._rate_lp + a * (w - self._rate_lp)
+            a = 1.0 - math.exp(-2.0 * math.pi * self.rate_lowpass_hz * max(t - self._t_rate, 0.0))
+            self._rate_lp = [lp + a * (wi - lp) for lp, wi in zip(self._rate_lp, w, strict=True)]
         self._t_rate = t
 
     def _write_new(self, n_obs: int) -> None:
@@ -271,21 +327,27 @@ class AdfusionNav(sysModel.SysModel):
         if self._att is None:
             self._att = messaging.NavAttMsgPayload()
             self._filt = messaging.InertialFilterMsgPayload()
+            self._set_att = setters(self._att, "timeTag", "sigma_BN", "omega_BN_B")
+            self._set_filt = setters(self._filt, "timeTag", "state", "covar", "numObs")
         att, filt = self._att, self._filt
+        set_time, set_sigma, set_omega = self._set_att
+        set_ftime, set_state, set_covar, set_nobs = self._set_filt
         f = self.est.filter
         if f is not None:
-            att.timeTag = filt.timeTag = float(self.est.t)
+            t = float(self.est.t)
+            set_time(att, t)
+            set_ftime(filt, t)
             # sigma_BN of the filter's unit q_body_icrs (frames.sigma_bn_from_q_body_icrs,
             # inline in floats: this runs at the gyro rate)
             w, x, y, z = f.q_body_icrs.tolist()
             k = (-1.0 if w >= 0.0 else 1.0) / (1.0 + abs(w))
             sigma = [k * x, k * y, k * z]
-            att.sigma_BN = sigma
+            set_sigma(att, sigma)
             if self._rate_lp is not None:
-                att.omega_BN_B = self._rate_lp.tolist()
-            filt.state = sigma + np.asarray(f.bias_rad_s, dtype=np.float64).tolist()
-            filt.covar = np.asarray(f.P, dtype=np.float64).reshape(-1).tolist()
-        filt.numObs = int(n_obs)
+                set_omega(att, self._rate_lp)
+            set_state(filt, sigma + f.bias_rad_s.tolist())
+            set_covar(filt, f.P.reshape(-1).tolist())
+        set_nobs(filt, int(n_obs))
 
     @staticmethod
     def q_body_icrs(payload) -> np.ndarray:

@@ -32,6 +32,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -265,24 +266,12 @@ class Estimator:
                                          "all inputs of this step ignored"))
             return self._finish(rec)
         self._propagate_to(float(t), rec)
-        if gyro is not None and self.video_only:
-            rec.rejected.append(("gyro", "video-only estimator: gyro samples are ignored"))
-        elif gyro is not None:
-            try:
-                g = np.asarray(gyro, dtype=np.float64).reshape(-1)
-            except (TypeError, ValueError):
-                g = None
-            if g is None or g.shape != (3,) or not np.all(np.isfinite(g)):
-                shown = repr(gyro) if g is None else g.tolist()
-                rec.rejected.append(("gyro", f"not a finite 3-vector: {shown}"))
+        if gyro is not None:
+            refused = self._take_gyro(float(t), gyro)
+            if refused:
+                rec.rejected.append(("gyro", refused))
             else:
-                glitch = self._gyro_glitch(float(t), g)
-                if glitch:
-                    rec.rejected.append(("gyro", glitch))
-                else:
-                    self._omega_hold = g
-                    self._gyro_last = (float(t), g)
-                    rec.sensors.append("gyro")
+                rec.sensors.append("gyro")
         if frame is not None or detections is not None:
             self._use_camera(camera)
             try:
@@ -293,6 +282,36 @@ class Estimator:
         if mag is not None:
             self._mag_update(mag, rec)
         return self._finish(rec)
+
+    def step_gyro(self, t: float, gyro: ArrayLike) -> tuple[str, str] | None:
+        """``step(t, gyro=gyro)`` without building its :class:`StepRecord`, for loops that
+        step at the gyro rate and look at the estimate only now and then: the same checks,
+        propagation and zero-order hold (the filter ends up bit-identical). Returns None,
+        or what the record's ``rejected`` would hold — ``("time", why)`` when the step was
+        refused, ``("gyro", why)`` when the sample was.
+
+        >>> est = Estimator(None, q_body_icrs0=[1.0, 0.0, 0.0, 0.0])
+        >>> est.step_gyro(0.0, [0.0, 0.0, 0.01]), est.step_gyro(1.0, [0.0, 0.0, 0.01])
+        (None, None)
+        >>> round(float(np.degrees(rot.angle_between(est.filter.q_body_icrs, rot.IDENTITY))), 3)
+        0.573
+        >>> est.step_gyro(2.0, [0.0, float("nan"), 0.0])
+        ('gyro', 'not a finite 3-vector: [0.0, nan, 0.0]')
+        >>> est.step_gyro(1.5, [0.0, 0.0, 0.01])[0]
+        'time'
+        """
+        try:
+            t = float(t)
+        except (TypeError, ValueError):
+            return ("time", f"not a number: {t!r}; all inputs of this step ignored")
+        if not math.isfinite(t):
+            return ("time", f"non-finite time {t}")
+        if self.t is not None and t < self.t:
+            return ("time", f"time went backwards ({t} < {self.t}); all inputs of this step "
+                            "ignored")
+        self._propagate_to(t, None)
+        refused = self._take_gyro(t, gyro)
+        return ("gyro", refused) if refused else None
 
     def add_fix(self, t: float, q_cam_icrs: ArrayLike, covariance_cam: ArrayLike,
                 source: str = "star fix") -> StepRecord:
@@ -338,27 +357,50 @@ class Estimator:
 
     # --- pieces ---------------------------------------------------------------------------
 
-    def _gyro_glitch(self, t: float, g: NDArray[np.float64]) -> str:
-        """Why the sample ``g`` at ``t`` is implausible, or "" if it is not."""
-        rate = float(np.linalg.norm(g))
+    def _take_gyro(self, t: float, gyro: ArrayLike) -> str:
+        """Hold the sample ``gyro`` taken at ``t``; "" or why it is refused."""
+        if self.video_only:
+            return "video-only estimator: gyro samples are ignored"
+        try:
+            g = np.asarray(gyro, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            return f"not a finite 3-vector: {gyro!r}"
+        if g.shape != (3,):
+            return f"not a finite 3-vector: {g.tolist()}"
+        x, y, z = g.tolist()
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
+            return f"not a finite 3-vector: {[x, y, z]}"
+        glitch = self._gyro_glitch(t, x, y, z)
+        if glitch:
+            return glitch
+        self._omega_hold = g
+        self._gyro_last = (t, g)
+        return ""
+
+    def _gyro_glitch(self, t: float, x: float, y: float, z: float) -> str:
+        """Why the sample (x, y, z) at ``t`` is implausible, or "" if it is not (in floats:
+        this runs at the gyro rate)."""
+        rate = math.sqrt(x * x + y * y + z * z)
         if rate > self.gyro_max_rate:
             return (f"glitch: |ω| = {rate:.3g} rad/s exceeds gyro_max_rate_rad_s = "
                     f"{self.gyro_max_rate:g}; sample ignored")
-        if self._gyro_last is None or not np.isfinite(self.gyro_max_accel):
+        if self._gyro_last is None or not math.isfinite(self.gyro_max_accel):
             return ""
         t0, g0 = self._gyro_last
+        x0, y0, z0 = g0.tolist()
         dt = max(t - t0, 0.0)
-        step = float(np.linalg.norm(g - g0))
-        noise = 8.0 * self.arw / np.sqrt(dt) if dt > 0 else np.inf
-        allowed = self.gyro_max_accel * dt + (noise if np.isfinite(noise) else 0.0)
+        step = math.sqrt((x - x0) ** 2 + (y - y0) ** 2 + (z - z0) ** 2)
         if dt == 0.0:
             allowed = self.gyro_max_accel * 1e-3  # a repeated time: allow a ms of change
+        else:
+            noise = 8.0 * self.arw / math.sqrt(dt)
+            allowed = self.gyro_max_accel * dt + (noise if math.isfinite(noise) else 0.0)
         if step > allowed:
             return (f"glitch: ω changed by {step:.3g} rad/s in {dt:.3g} s (more than "
                     f"gyro_max_accel_rad_s2 = {self.gyro_max_accel:g} allows); sample ignored")
         return ""
 
-    def _propagate_to(self, t: float, rec: StepRecord) -> None:
+    def _propagate_to(self, t: float, rec: StepRecord | None) -> None:
         if self.t is not None and self.filter is not None and t > self.t:
             if self._omega_hold is not None and not self.video_only:
                 self.filter.propagate(t - self.t, self._omega_hold)
@@ -387,13 +429,9 @@ class Estimator:
             rec.detections_xy = arr[:, :2] if arr.ndim == 2 and arr.shape[1] >= 2 else None
         except (TypeError, ValueError):
             rec.detections_xy = None
-        prior = None
-        if self.filter is not None and self.misses < self.max_misses:
-            q_cam_icrs = rot.multiply(self.q_cam_body, self.filter.q_body_icrs)
-            sigma = max(self.filter.search_cone_deg(k=1.0), self.min_cone_deg)
-            sigma *= self.widen_per_miss ** self.misses
-            rec.cone_deg = 3.0 * sigma
-            prior = Prior(q_cam_icrs, sigma, smear_cam_rad=self._smear(exposure_s))
+        prior = self.tracking_prior(exposure_s)
+        if prior is not None:
+            rec.cone_deg = prior.k * prior.sigma_deg
         try:
             sol = self.solver.solve(detections, prior=prior)
         except (ValueError, TypeError) as e:
@@ -448,6 +486,26 @@ class Estimator:
                                      f"other and put the filter {off:.3g}° off"))
                 self._lis_rejects = []
                 self.misses = 0
+
+    def tracking_prior(self, exposure_s: float | None = None) -> Prior | None:
+        """The prior the next frame of the active camera is identified from — the filter's
+        attitude mounted into the camera frame, its 1-σ cone (at least ``min_cone_deg``,
+        widened by ``widen_per_miss`` per miss), the smear over ``exposure_s`` — or None
+        when that frame goes to lost-in-space (no estimate, or ``max_misses`` misses). A
+        caller that detects stars itself (in windows around the predicted stars) uses it
+        to place the windows; :meth:`step` uses the same.
+
+        >>> est = Estimator(None, q_body_icrs0=[1.0, 0.0, 0.0, 0.0], sigma_attitude0_rad=1e-3)
+        >>> p = est.tracking_prior()
+        >>> round(p.sigma_deg, 4), p.k, Estimator(None).tracking_prior()
+        (0.0573, 3.0, None)
+        """
+        if self.filter is None or self.misses >= self.max_misses:
+            return None
+        q_cam_icrs = rot.multiply(self.q_cam_body, self.filter.q_body_icrs)
+        sigma = max(self.filter.search_cone_deg(k=1.0), self.min_cone_deg)
+        sigma *= self.widen_per_miss ** self.misses
+        return Prior(q_cam_icrs, sigma, smear_cam_rad=self._smear(exposure_s))
 
     def _consistent_rejects(self, q_fix_body_icrs: NDArray) -> bool:
         """Note a gate-rejected lost-in-space fix; ``True`` once ``reinit_after`` of them in a
