@@ -448,6 +448,48 @@ def test_video_source(tmp_path: Path) -> None:
     assert len(merged) == 10 + 24 and [m.t_s for m in merged] == sorted(m.t_s for m in merged)
 
 
+def test_grey_video_is_read_as_decoded_and_colour_video_as_before(tmp_path: Path) -> None:
+    """A grey 8-bit stream (FFV1 of a star camera) is read without OpenCV's grey → BGR
+    conversion and gives the written pixels exactly; a colour/YUV stream keeps the
+    conversion (its luma plane is not what BGR → grey gives, so the frames stay those of
+    earlier replays)."""
+    from adfusion.logs.sources import _open_video
+
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, (H, W), dtype=np.uint8) for _ in range(4)]
+    grey = tmp_path / "grey.mkv"
+    vw = cv2.VideoWriter(str(grey), cv2.VideoWriter_fourcc(*"FFV1"), 30.0, (W, H),
+                         isColor=False)
+    if not vw.isOpened():
+        pytest.skip("this OpenCV build cannot write FFV1")
+    for f in frames:
+        vw.write(f)
+    vw.release()
+    cap = _open_video(str(grey))
+    assert cap.get(cv2.CAP_PROP_CONVERT_RGB) == 0  # read as decoded
+    cap.release()
+    got = [m.payload for m in VideoSource(grey, fps=30.0).frames()]
+    assert len(got) == 4 and all(np.array_equal(a, b) for a, b in zip(got, frames, strict=True))
+
+    colour = tmp_path / "colour.avi"
+    vw = cv2.VideoWriter(str(colour), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (W, H))
+    if not vw.isOpened():
+        pytest.skip("this OpenCV build cannot write MJPG/avi")
+    for f in frames:
+        vw.write(cv2.merge([f, f // 2, 255 - f]))
+    vw.release()
+    cap = _open_video(str(colour))
+    assert cap.get(cv2.CAP_PROP_CONVERT_RGB) != 0
+    cap.release()
+    plain = cv2.VideoCapture(str(colour))  # the reference: OpenCV's BGR, then BGR → grey
+    want = []
+    while (read := plain.read())[0]:
+        want.append(cv2.cvtColor(read[1], cv2.COLOR_BGR2GRAY))
+    got = [m.payload for m in VideoSource(colour, fps=30.0).frames()]
+    assert len(got) == len(want) == 4
+    assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True))
+
+
 # --------------------------------------------------------------------------- independent reader
 NODE_CACHE = Path(os.environ.get("ADFUSION_NODE_CACHE",
                                  Path.home() / ".cache" / "adfusion" / "node-mcap"))

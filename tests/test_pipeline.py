@@ -199,3 +199,25 @@ def test_stars_in_view_are_counted_as_stars_in_view_counts_them(mag_limit):
     assert s.frames_with_3_stars == int((ref >= 3).sum())
     assert s.identified_with_3_stars == int((ref[::2] >= 3).sum())
     assert 0 < s.frames_with_3_stars < len(ref)
+
+
+def test_replay_hands_the_garbage_collector_back_as_it_found_it(tmp_path):
+    """The replay pauses the cyclic collector while it builds the run and freezes the
+    setup's objects for the message loop (run._SetupOutOfCollection): afterwards nothing
+    stays frozen and the collector is on or off as before, also after a failed run."""
+    import gc
+
+    sim = tmp_path / "sim.mcap"
+    simulate(oedipus(duration_s=0.3, render=False), sim)
+    assert gc.get_freeze_count() == 0
+    for enabled in (True, False):
+        (gc.enable if enabled else gc.disable)()
+        try:
+            replay(sim, tmp_path / f"out{enabled}.mcap", progress=False)
+            assert gc.isenabled() is enabled and gc.get_freeze_count() == 0
+            with pytest.raises(ValueError):
+                replay(sim, tmp_path / "bad.mcap", progress=False, options=None,
+                       config={"q_body_cam": "not a quaternion"})
+            assert gc.isenabled() is enabled and gc.get_freeze_count() == 0
+        finally:
+            gc.enable()

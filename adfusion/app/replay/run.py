@@ -18,6 +18,7 @@ Example:
 
 from __future__ import annotations
 
+import gc
 import os
 import time
 from collections.abc import Sequence
@@ -297,6 +298,7 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
     if own:
         ahead = DetectAhead()
         ahead.start()
+    collection = _SetupOutOfCollection()
     try:
         r = _build(source, options, ahead)
         r.truth = TruthStage(r.problems)
@@ -312,6 +314,7 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
                 sink.open(r)
                 opened.append(sink)
             takes = [sink.take for sink in sinks]
+            collection.loop_starts()
             for msg in messages:
                 step = Step.of(msg)
                 for stage in stages:
@@ -332,6 +335,7 @@ def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = No
                     sink.close()
         return r
     finally:
+        collection.restore()
         if own:
             ahead.close()
 
@@ -436,6 +440,35 @@ def _refuse_to_overwrite(in_path: str | Path, out_path: str | Path) -> None:
                                                                                 partial):
         raise ValueError(f"the output's temporary name {partial} is the input: give "
                          "another output name")
+
+
+class _SetupOutOfCollection:
+    """Keeps the cyclic garbage collector off the setup's objects (the catalogue, index,
+    solver, numba's and the newly imported modules' ~100 000 objects, which live as long as
+    the run): paused from creation while the run is built, then at :meth:`loop_starts`
+    frozen (:func:`gc.freeze`: left out of every later scan) and resumed for the message
+    loop. Without, one full collection during the setup walked them all: 0.12–0.29 s of a
+    600-frame replay on the shared 2-core machine, time the end-to-end rate pays. Nothing
+    is lost: cycles made in the loop are collected as before, and :meth:`restore` hands
+    every object back to the collector (:func:`gc.unfreeze`), in the state found."""
+
+    def __init__(self) -> None:
+        self.enabled = gc.isenabled()
+        self.frozen = False
+        gc.disable()
+
+    def loop_starts(self) -> None:
+        gc.freeze()
+        self.frozen = True
+        if self.enabled:
+            gc.enable()
+
+    def restore(self) -> None:
+        if self.frozen:
+            gc.unfreeze()
+            self.frozen = False
+        if self.enabled:
+            gc.enable()
 
 
 def _progress(source):

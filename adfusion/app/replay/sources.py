@@ -234,8 +234,10 @@ class VideoInput(_FramesInput):
 
 
 
-def _prefetch(frames: Iterator[Message], depth: int = 4) -> Iterator[Message]:
-    """Decode frames in a thread, ``depth`` ahead (OpenCV's decoders release the GIL)."""
+def _prefetch(frames: Iterator[Message], depth: int = 16) -> Iterator[Message]:
+    """Decode frames in a thread, ``depth`` ahead (OpenCV's decoders release the GIL); 16
+    rather than 4 kept the decoder from starving the detection look-ahead when another
+    process took its core (folder replay +4 % alone, +10 % with the look-ahead at 16)."""
     import queue
     import threading
 

@@ -265,7 +265,10 @@ class DetectAhead:
     result computed for that very frame (errors raised there, as a direct call would).
     """
 
-    def __init__(self, camera: Camera | None = None, depth: int = 8) -> None:
+    def __init__(self, camera: Camera | None = None, depth: int = 16) -> None:
+        # 16 rather than 8 frames ahead: measured +7–13 % frames/s at a load of 3 (a deeper
+        # queue rides out the moments another process takes the worker's core); 4 MB of
+        # shared frames at 512×480
         self.camera = camera
         self.cameras: dict[str, Camera] = {}  # image topic → its camera (several cameras)
         self.depth = depth
@@ -281,7 +284,7 @@ class DetectAhead:
         from adfusion.app.detect_worker import DetectWorker
 
         if self._worker is None and (os.cpu_count() or 1) >= 2:
-            self._worker = DetectWorker()
+            self._worker = DetectWorker(slots=self.depth + 1)  # a slot for every frame ahead
 
     def close(self) -> None:
         """Stop the worker (idempotent)."""
