@@ -1,0 +1,347 @@
+"""Compiled (numba) window centroiding for :func:`starid.detect_roi.detect_windows`.
+
+Why compiled code: a tracked frame centroids ~50–80 small windows. The numpy path does it in
+~80 whole-array operations of a few µs each — per-call overhead, ~1 ms a frame; one compiled
+pass over the windows is a few tens of µs.
+
+The kernel computes what the numpy path (``detect_windows(..., compiled=False)``, kept as
+the reference) computes, in the same arithmetic: float32 windows, background and noise from
+the sorted border (numpy's linear quantile, in float32), the float32 threshold, 8-connected
+blobs numbered as OpenCV's block-based labelling numbers them (by each blob's first 2×2
+block in raster order: the order breaks ties between blobs equally near a prediction), the
+float32 sums over rows (sequential) and columns (numpy's pairwise sum: 8 accumulators) of
+the ring-weighted values, and the same rejection reasons in the same order of precedence.
+The float64 sums after that are exact for integer images (their terms are multiples of the
+background's float32 step, well inside 53 bits), so their order does not matter there.
+tests/test_detect_roi.py compares the two paths on rendered frames. Compiled on first use
+and cached on disk (``cache=True``), like :mod:`starid.tracking_kernels`;
+:func:`starid.kernels.prepare` compiles it with the others.
+
+Example:
+    >>> import numpy as np
+    >>> from adfusion.starid.detect_roi_kernels import pairwise_sum32
+    >>> float(pairwise_sum32(np.arange(10, dtype=np.float32)))
+    45.0
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["pairwise_sum32", "window_centroids"]
+
+_jit = numba.njit(cache=True, nogil=True)
+
+# P(X < median − 1σ) for a Gaussian (as in starid.detect)
+_P_MINUS_1SIGMA = 0.15865525393145707
+_MIN_AREA_FOR_SHAPE = 5
+_PIXEL_VARIANCE = 1.0 / 12.0
+_NOT_FOUND, _CLIPPED, _ELONGATED, _EDGE = 1, 2, 3, 4
+
+
+@_jit
+def pairwise_sum32(a):
+    """numpy's float32 ``sum`` of a short contiguous row (≤ 128): sequential below 8
+    values, else 8 interleaved accumulators combined pairwise, then the tail."""
+    n = a.shape[0]
+    if n < 8:
+        res = np.float32(0.0)
+        for i in range(n):
+            res = np.float32(res + a[i])
+        return res
+    r0, r1, r2, r3 = a[0], a[1], a[2], a[3]
+    r4, r5, r6, r7 = a[4], a[5], a[6], a[7]
+    i = 8
+    stop = n - n % 8
+    while i < stop:
+        r0 = np.float32(r0 + a[i])
+        r1 = np.float32(r1 + a[i + 1])
+        r2 = np.float32(r2 + a[i + 2])
+        r3 = np.float32(r3 + a[i + 3])
+        r4 = np.float32(r4 + a[i + 4])
+        r5 = np.float32(r5 + a[i + 5])
+        r6 = np.float32(r6 + a[i + 6])
+        r7 = np.float32(r7 + a[i + 7])
+        i += 8
+    res = np.float32(np.float32(np.float32(r0 + r1) + np.float32(r2 + r3))
+                     + np.float32(np.float32(r4 + r5) + np.float32(r6 + r7)))
+    while i < n:
+        res = np.float32(res + a[i])
+        i += 1
+    return res
+
+
+@_jit
+def _pairwise_sum64(a):
+    """numpy's float64 ``sum`` of a short contiguous row (as :func:`pairwise_sum32`)."""
+    n = a.shape[0]
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[i]
+        return res
+    r = a[:8].copy()
+    i = 8
+    stop = n - n % 8
+    while i < stop:
+        for j in range(8):
+            r[j] += a[i + j]
+        i += 8
+    res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]))
+    while i < n:
+        res += a[i]
+        i += 1
+    return res
+
+
+@_jit
+def _sorted_quantile32(row, q):
+    """numpy's linear quantile of a sorted float32 row, in float32 (as detect_roi's)."""
+    pos = q * (row.shape[0] - 1)
+    i = int(math.floor(pos))
+    f = pos - i
+    if i + 1 >= row.shape[0]:
+        return row[i]
+    return np.float32(np.float32(row[i] * np.float32(1.0 - f))
+                      + np.float32(row[i + 1] * np.float32(f)))
+
+
+@_jit
+def _median32(a):
+    """``np.median`` of a float32 vector, in float32 (nan if any is nan)."""
+    s = np.sort(a)
+    n = s.shape[0]
+    if np.isnan(s[n - 1]):
+        return np.float32(np.nan)
+    if n % 2:
+        return s[n // 2]
+    return np.float32(np.float32(s[n // 2 - 1] + s[n // 2]) / np.float32(2.0))
+
+
+@_jit
+def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elongation,
+                     check_elongation):
+    """The windows' stars (see the module docstring). ``pred``: (n, 2) predictions inside
+    the frame; ``floor``: the noise floor. Returns (code (n,): 0 or the rejection reason,
+    cx, cy, area (0 where nothing was found), flux, peak, good: the accepted windows
+    brightest first, background median, noise median, pixels above threshold)."""
+    h_img, w_img = img.shape
+    n = pred.shape[0]
+    side = 2 * half + 1
+    nb = 4 * side - 4
+    sig32 = np.float32(sigma)
+    code = np.zeros(n, np.int64)
+    cx = np.zeros(n)
+    cy = np.zeros(n)
+    area_out = np.zeros(n, np.int64)
+    flux_out = np.zeros(n)
+    peak_out = np.zeros(n)
+    px_out = np.zeros(n, np.int64)
+    py_out = np.zeros(n, np.int64)
+    d2_out = np.zeros(n)
+    bgs = np.empty(n, np.float32)
+    noises = np.empty(n, np.float32)
+    bright = 0
+    win = np.empty((side, side), np.float32)
+    val = np.empty((side, side), np.float32)
+    border = np.empty(nb, np.float32)
+    lab = np.zeros((side, side), np.int64)
+    stack = np.empty(side * side, np.int64)
+    ring = np.zeros((side, side), np.bool_)
+    wcol = np.empty(side, np.float32)
+    wrow = np.empty(side, np.float32)
+    rowbuf = np.empty(side, np.float32)
+    wx = np.empty(side)
+    wy = np.empty(side)
+    for k in range(n):
+        x0 = min(max(int(np.rint(pred[k, 0])) - half, 0), w_img - side)
+        y0 = min(max(int(np.rint(pred[k, 1])) - half, 0), h_img - side)
+        for y in range(side):
+            for x in range(side):
+                win[y, x] = np.float32(img[y0 + y, x0 + x])
+        m = 0
+        for x in range(side):
+            border[m] = win[0, x]
+            border[m + side] = win[side - 1, x]
+            m += 1
+        m = 2 * side
+        for y in range(1, side - 1):
+            border[m] = win[y, 0]
+            border[m + side - 2] = win[y, side - 1]
+            m += 1
+        border.sort()
+        bg = _sorted_quantile32(border, 0.5)
+        noise = np.float32(bg - _sorted_quantile32(border, _P_MINUS_1SIGMA))
+        if noise < floor:  # np.maximum (a nan noise stays nan)
+            noise = floor
+        bgs[k], noises[k] = bg, noise
+        thr = np.float32(sig32 * noise)
+        for y in range(side):
+            for x in range(side):
+                v = np.float32(win[y, x] - bg)
+                val[y, x] = v
+                lab[y, x] = 0
+                if v > thr:
+                    lab[y, x] = -1
+                    bright += 1
+        # 8-connected blobs by flood fill, numbered by their first 2×2 block in raster
+        # order (OpenCV's block-based labelling of the stacked windows: windows start on
+        # even rows, so the blocks line up with each window's)
+        n_lab = 0
+        for by in range(0, side, 2):
+            for bx in range(0, side, 2):
+                for y in range(by, min(by + 2, side)):
+                    for x in range(bx, min(bx + 2, side)):
+                        if lab[y, x] != -1:
+                            continue
+                        n_lab += 1
+                        lab[y, x] = n_lab
+                        top = 0
+                        stack[top] = y * side + x
+                        top = 1
+                        while top:
+                            top -= 1
+                            p = stack[top]
+                            py, px = p // side, p % side
+                            for yy in range(max(py - 1, 0), min(py + 2, side)):
+                                for xx in range(max(px - 1, 0), min(px + 2, side)):
+                                    if lab[yy, xx] == -1:
+                                        lab[yy, xx] = n_lab
+                                        stack[top] = yy * side + xx
+                                        top += 1
+        if n_lab == 0:
+            code[k] = _NOT_FOUND
+            continue
+        # per blob, in raster order: area, flux (float64, sequential), peak (the last pixel
+        # at the maximum), clipped (touches a window edge that is not the frame's)
+        area = np.zeros(n_lab + 1, np.int64)
+        flux = np.zeros(n_lab + 1)
+        peak = np.full(n_lab + 1, -np.inf)
+        ipk = np.zeros(n_lab + 1, np.int64)
+        clipped = np.zeros(n_lab + 1, np.bool_)
+        for y in range(side):
+            for x in range(side):
+                lb = lab[y, x]
+                if lb <= 0:
+                    continue
+                v = np.float64(val[y, x])
+                area[lb] += 1
+                flux[lb] += v
+                if v >= peak[lb]:
+                    peak[lb] = v
+                    ipk[lb] = y * side + x
+                # (as the numpy path: a pixel on the frame's edge is exempt, corners too)
+                if ((y == 0 or y == side - 1 or x == 0 or x == side - 1)
+                        and not ((x == 0 and x0 == 0) or (x == side - 1 and x0 == w_img - side)
+                                 or (y == 0 and y0 == 0)
+                                 or (y == side - 1 and y0 == h_img - side))):
+                    clipped[lb] = True
+        best, best_d2 = 0, np.inf
+        for lb in range(1, n_lab + 1):
+            if area[lb] < min_area:
+                continue
+            dx = (ipk[lb] % side + x0) - pred[k, 0]
+            dy = (ipk[lb] // side + y0) - pred[k, 1]
+            d2 = dx * dx + dy * dy
+            if d2 < best_d2:
+                best, best_d2 = lb, d2
+        if best == 0:
+            code[k] = _NOT_FOUND
+            continue
+        # centroid over the blob and its ring of 8-neighbours, background-subtracted, ≥ 0
+        for y in range(side):
+            for x in range(side):
+                ring[y, x] = False
+        for y in range(side):
+            for x in range(side):
+                if lab[y, x] == best:
+                    for yy in range(max(y - 1, 0), min(y + 2, side)):
+                        for xx in range(max(x - 1, 0), min(x + 2, side)):
+                            ring[yy, xx] = True
+        for x in range(side):
+            wcol[x] = np.float32(0.0)
+        for y in range(side):
+            for x in range(side):
+                v = val[y, x] if ring[y, x] and val[y, x] > 0 else np.float32(0.0)
+                rowbuf[x] = v
+                wcol[x] = np.float32(wcol[x] + v)  # numpy: sequential down the rows
+            wrow[y] = pairwise_sum32(rowbuf)  # numpy: pairwise along a row
+        for i in range(side):
+            wx[i] = np.float64(wcol[i])
+            wy[i] = np.float64(wrow[i])
+        sw = _pairwise_sum64(wx)
+        sw_safe = sw if sw > 0 else 1.0
+        sx = sy = sxx = syy = 0.0
+        for i in range(side):
+            sx += wx[i] * i
+            sy += wy[i] * i
+            sxx += wx[i] * (i * i)
+            syy += wy[i] * (i * i)
+        gx, gy = sx / sw_safe, sy / sw_safe
+        cx[k], cy[k] = gx + x0, gy + y0
+        area_out[k], flux_out[k], peak_out[k] = area[best], flux[best], peak[best]
+        px_out[k] = ipk[best] % side + x0
+        py_out[k] = ipk[best] // side + y0
+        d2_out[k] = best_d2
+        if clipped[best]:
+            code[k] = _CLIPPED
+            continue
+        if check_elongation and area[best] >= _MIN_AREA_FOR_SHAPE:
+            sxy = 0.0
+            for y in range(side):
+                for x in range(side):
+                    if ring[y, x] and val[y, x] > 0:
+                        sxy += np.float64(val[y, x]) * y * x
+            cxx = sxx / sw_safe - gx * gx
+            cyy = syy / sw_safe - gy * gy
+            cxy = sxy / sw_safe - gx * gy
+            half_trace = 0.5 * (cxx + cyy)
+            disc = math.sqrt(max(0.25 * (cxx - cyy) ** 2 + cxy * cxy, 0.0))
+            ratio = math.sqrt((half_trace + disc + _PIXEL_VARIANCE)
+                              / (max(half_trace - disc, 0.0) + _PIXEL_VARIANCE))
+            if ratio > max_elongation:
+                code[k] = _ELONGATED
+                continue
+        c_x, c_y = cx[k], cy[k]
+        if (c_x + 0.5 < edge_px or w_img - 0.5 - c_x < edge_px or c_y + 0.5 < edge_px
+                or h_img - 0.5 - c_y < edge_px):
+            code[k] = _EDGE
+    # two windows on one blob (the same peak pixel): the nearer prediction keeps it (the
+    # lower window among equals), the other found nothing
+    dup = np.zeros(n, np.bool_)
+    for i in range(n):
+        if code[i] != 0:
+            continue
+        for j in range(n):
+            if j == i or code[j] != 0:
+                continue
+            if px_out[j] == px_out[i] and py_out[j] == py_out[i] and (
+                    d2_out[j] < d2_out[i] or (d2_out[j] == d2_out[i] and j < i)):
+                dup[i] = True
+                break
+    n_good = 0
+    for i in range(n):
+        if dup[i]:
+            code[i] = _NOT_FOUND
+        elif code[i] == 0:
+            n_good += 1
+    # brightest first, then by y, then x (a stable insertion sort: few dozen windows)
+    good = np.empty(n_good, np.int64)
+    m = 0
+    for i in range(n):
+        if code[i] == 0:
+            j = m
+            while j > 0:
+                g = good[j - 1]
+                if (flux_out[g] > flux_out[i] or (flux_out[g] == flux_out[i] and (
+                        cy[g] < cy[i] or (cy[g] == cy[i] and cx[g] <= cx[i])))):
+                    break
+                good[j] = g
+                j -= 1
+            good[j] = i
+            m += 1
+    return (code, cx, cy, area_out, flux_out, peak_out, good, _median32(bgs),
+            _median32(noises), bright)
