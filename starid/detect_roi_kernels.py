@@ -154,6 +154,11 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
     wcol = np.empty(side, np.float32)
     wrow = np.empty(side, np.float32)
     rowbuf = np.empty(side, np.float32)
+    area = np.empty(side * side + 1, np.int64)  # per blob (label), reused by each window
+    flux = np.empty(side * side + 1)
+    peak = np.empty(side * side + 1)
+    ipk = np.empty(side * side + 1, np.int64)
+    clipped = np.empty(side * side + 1, np.bool_)
     wx = np.empty(side)
     wy = np.empty(side)
     for k in range(n):
@@ -217,11 +222,8 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
             continue
         # per blob, in raster order: area, flux (float64, sequential), peak (the last pixel
         # at the maximum), clipped (touches a window edge that is not the frame's)
-        area = np.zeros(n_lab + 1, np.int64)
-        flux = np.zeros(n_lab + 1)
-        peak = np.full(n_lab + 1, -np.inf)
-        ipk = np.zeros(n_lab + 1, np.int64)
-        clipped = np.zeros(n_lab + 1, np.bool_)
+        for lb in range(n_lab + 1):
+            area[lb], flux[lb], peak[lb], ipk[lb], clipped[lb] = 0, 0.0, -np.inf, 0, False
         for y in range(side):
             for x in range(side):
                 lb = lab[y, x]
