@@ -329,6 +329,7 @@ class AdfusionNav(sysModel.SysModel):
             self._filt = messaging.InertialFilterMsgPayload()
             self._set_att = setters(self._att, "timeTag", "sigma_BN", "omega_BN_B")
             self._set_filt = setters(self._filt, "timeTag", "state", "covar", "numObs")
+            self._n_obs = 0  # a new payload's numObs
         att, filt = self._att, self._filt
         set_time, set_sigma, set_omega = self._set_att
         set_ftime, set_state, set_covar, set_nobs = self._set_filt
@@ -347,7 +348,9 @@ class AdfusionNav(sysModel.SysModel):
                 set_omega(att, self._rate_lp)
             set_state(filt, sigma + f.bias_rad_s.tolist())
             set_covar(filt, f.P.reshape(-1).tolist())
-        set_nobs(filt, int(n_obs))
+        if n_obs != self._n_obs:  # the payload keeps it: set only when it changes
+            set_nobs(filt, int(n_obs))
+            self._n_obs = n_obs
 
     @staticmethod
     def q_body_icrs(payload) -> np.ndarray:

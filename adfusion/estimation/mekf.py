@@ -525,7 +525,15 @@ class MEKF(AttitudeFilter):
         phi = self._phi
         phi[:3] = phi_rows(tx, ty, tz, dt)
         if dt != self._q_dt:
-            self._Q = process_noise(dt, self._sv, self._su)
+            # process_noise(dt, ...) in floats (its np.eye/zeros were most of a step's
+            # cost when dt jitters): the same expressions, so the same bits
+            sv2, su2 = self._sv**2, self._su**2
+            a, c, d = sv2 * dt + su2 * dt**3 / 3.0, su2 * dt**2 / 2.0, su2 * dt
+            q = np.zeros((6, 6))
+            q[0, 0] = q[1, 1] = q[2, 2] = a
+            q[0, 3] = q[1, 4] = q[2, 5] = q[3, 0] = q[4, 1] = q[5, 2] = c
+            q[3, 3] = q[4, 4] = q[5, 5] = d
+            self._Q = q
             self._q_dt = dt
         p = phi.dot(self._P).dot(phi.T)  # .dot: a third of the call overhead of @ here
         p += self._Q
