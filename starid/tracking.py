@@ -47,7 +47,8 @@ class Tracking:
     """The tracking half of :class:`starid.Solver` (a mixin)."""
 
     def warm_up_tracking(self) -> bool:
-        """Load the compiled tracking path (:mod:`starid.tracking_kernels`) now rather than
+        """Load the compiled tracking path (:mod:`starid.tracking_kernels`, and the window
+        centroiding of :mod:`starid.detect_roi_kernels`) now rather than
         in the first tracked frame: ~0.1 s from numba's cache, or — the first time after
         an install or an edit — ~5 s of CPU compiling it once. Call it (with
         :meth:`Solver.warm_up`, which loads the lost-in-space kernels) before a real-time
@@ -60,6 +61,14 @@ class Tracking:
         >>> s.warm_up_tracking()
         True
         """
+        from adfusion.starid.detect_roi import detect_windows  # (detect_roi: no solver)
+
+        # the compiled window centroiding (starid.detect_roi_kernels) of integer and float
+        # frames, as TrackingWindows uses it
+        for dtype in (np.uint16, np.float32, np.float64):
+            img = np.full((32, 32), 100, dtype)
+            img[15:17, 15:17] = 200
+            detect_windows(img, [[15.5, 15.5]], 4)
         for dec in (0.5, -0.5, 1.2, -1.2, 0.0):
             q = rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0)
             pxy, _, idx = self._project_idx(q, self.camera)

@@ -94,3 +94,60 @@ def test_tracking_windows_hand_back_loose_or_wrong_priors():
     # handed over as if they were the predicted stars
     off = rot.multiply(rot.exp_map([20 * cam.pixel_scale_rad, 0.0, 0.0]), q)
     assert tw.detect(fr.image, starid.Prior(off, 0.003)) is None
+
+
+def _same_detections(a, b) -> None:
+    """Everything detect_windows returns, bit for bit."""
+    for k in ("xy", "flux", "area", "peak"):
+        assert np.array_equal(getattr(a, k), getattr(b, k)), k
+        assert getattr(a, k).dtype == getattr(b, k).dtype, k
+    assert (a.background_level, a.noise_sigma, a.bright_pixels) == \
+        (b.background_level, b.noise_sigma, b.bright_pixels)
+    assert [(r.x, r.y, r.area, r.reason) for r in a.rejected] == \
+        [(r.x, r.y, r.area, r.reason) for r in b.rejected]
+
+
+def test_compiled_windows_equal_the_numpy_path_on_rendered_frames():
+    # the compiled kernel (the default) against the numpy reference: smeared rendered
+    # frames, predictions 0.7 px off, windows on the frame's edges and corners, integer
+    # and float images, with and without the isolation test
+    cat = starid.Catalog.hipparcos(mag_limit=6.5)
+    cam = starid.Camera.pinhole(512, 512, 20.0)
+    tw = TrackingWindows(starid.Solver(cat, cam))
+    rng = np.random.default_rng(3)
+    reasons = set()
+    for t in range(4):
+        q = rot.q_cam_icrs_from_radec_roll(rng.uniform(0, 2 * np.pi), rng.uniform(-1.4, 1.4),
+                                           rng.uniform(0, 2 * np.pi))
+        fr = render_frame(cam, q, cat.vectors, cat.mag, seed=t, exposure_s=0.1,
+                          omega_cam_rad_s=rng.normal(0, 0.003, 3))
+        xy = tw.predict(q)
+        xy = np.vstack([xy + rng.normal(0, 0.7, xy.shape), [[0.0, 0.0], [511.4, 3.0]]])
+        noisy = fr.image.astype(np.float64) + rng.normal(0, 0.1, fr.image.shape)
+        for img in (fr.image, noisy):
+            for half, iso in ((3, None), (6, 6.0), (9, None)):
+                a = detect_windows(img, xy, half, isolation_px=iso, compiled=False)
+                b = detect_windows(img, xy, half, isolation_px=iso)
+                _same_detections(a, b)
+                reasons |= {r.reason for r in a.rejected}
+                assert len(a) > 10
+    assert {"not_found", "clipped", "edge", "crowded"} <= reasons
+
+
+def test_compiled_windows_equal_the_numpy_path_on_blends_trails_and_ties(field):
+    img, stars = field
+    pred = np.array([v[:2] for v in stars.values()] + [[24.5, 101.6], [130.0, 100.0]])
+    for max_el in (3.0, None):
+        _same_detections(detect_windows(img, pred, 6, max_elongation=max_el, compiled=False),
+                         detect_windows(img, pred, 6, max_elongation=max_el))
+    # two equal blobs equally far from the prediction: the tie goes the same way (OpenCV's
+    # label order in the numpy path), in every arrangement of the pair
+    for dx, dy in ((3, 0), (0, 3), (3, 3), (3, -3), (1, 4)):
+        tie = np.full((40, 40), 100.0, np.float32)
+        tie[20 - dy, 20 - dx] = tie[20 + dy, 20 + dx] = 500.0
+        tie[20 - dy, 21 - dx] = tie[20 + dy, 21 + dx] = 400.0
+        tie += np.random.default_rng(dx * 7 + dy).normal(0, 1.0, tie.shape).astype(np.float32)
+        p = [[20.0, 20.0]]
+        a, b = detect_windows(tie, p, 7, compiled=False), detect_windows(tie, p, 7)
+        _same_detections(a, b)
+        assert len(a) == 1
