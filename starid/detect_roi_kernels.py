@@ -110,6 +110,66 @@ def _sorted_quantile32(row, q):
 
 
 @_jit
+def _select(a, lo, hi, k):
+    """Rearrange ``a[lo:hi]`` so that ``a[k]`` holds its sorted value there, with nothing
+    larger before it and nothing smaller after (quickselect; no nans)."""
+    hi -= 1
+    while hi > lo:
+        mid = (lo + hi) // 2  # median-of-three pivot, moved to hi
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[mid] < a[hi]:
+            a[mid], a[hi] = a[hi], a[mid]
+        pivot = a[hi]
+        store = lo
+        for i in range(lo, hi):
+            if a[i] < pivot:
+                a[i], a[store] = a[store], a[i]
+                store += 1
+        a[store], a[hi] = a[hi], a[store]
+        if store == k:
+            return
+        if store < k:
+            lo = store + 1
+        else:
+            hi = store - 1
+
+
+@_jit
+def _border_quantiles(border, q_hi, q_lo):
+    """The linear quantiles ``q_hi`` > ``q_lo`` of ``border`` as of its sorted copy
+    (:func:`_sorted_quantile32`), from the four order statistics they need (quickselect:
+    sorting the ~50–100 border pixels of every window was most of the kernel's time).
+    ``border`` is rearranged."""
+    n = border.shape[0]
+    for i in range(n):
+        if border[i] != border[i]:  # a nan: numpy sorts it last
+            border.sort()
+            return _sorted_quantile32(border, q_hi), _sorted_quantile32(border, q_lo)
+    out = np.empty(2, np.float32)
+    top = n
+    for j in range(2):
+        q = q_hi if j == 0 else q_lo
+        pos = q * (n - 1)
+        i = int(math.floor(pos))
+        f = pos - i
+        _select(border, 0, top, i)
+        if i + 1 >= n:
+            out[j] = border[i]
+        else:
+            nxt = border[i + 1]  # the smallest after a[i] (up to the previous selection)
+            for m in range(i + 2, min(top + 1, n)):
+                if border[m] < nxt:
+                    nxt = border[m]
+            out[j] = np.float32(np.float32(border[i] * np.float32(1.0 - f))
+                                + np.float32(nxt * np.float32(f)))
+        top = i + 1  # the lower quantile is among these (a[:i + 1] ≤ the rest)
+    return out[0], out[1]
+
+
+@_jit
 def _median32(a):
     """``np.median`` of a float32 vector, in float32 (nan if any is nan)."""
     s = np.sort(a)
@@ -177,9 +237,8 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
             border[m] = win[y, 0]
             border[m + side - 2] = win[y, side - 1]
             m += 1
-        border.sort()
-        bg = _sorted_quantile32(border, 0.5)
-        noise = np.float32(bg - _sorted_quantile32(border, _P_MINUS_1SIGMA))
+        bg, q_lo = _border_quantiles(border, 0.5, _P_MINUS_1SIGMA)
+        noise = np.float32(bg - q_lo)
         if noise < floor:  # np.maximum (a nan noise stays nan)
             noise = floor
         bgs[k], noises[k] = bg, noise
