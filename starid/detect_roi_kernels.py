@@ -101,7 +101,7 @@ def _pairwise_sum64(a):
 def _sorted_quantile32(row, q):
     """numpy's linear quantile of a sorted float32 row, in float32 (as detect_roi's)."""
     pos = q * (row.shape[0] - 1)
-    i = int(math.floor(pos))
+    i = math.floor(pos)
     f = pos - i
     if i + 1 >= row.shape[0]:
         return row[i]
@@ -112,29 +112,30 @@ def _sorted_quantile32(row, q):
 @_jit
 def _select(a, lo, hi, k):
     """Rearrange ``a[lo:hi]`` so that ``a[k]`` holds its sorted value there, with nothing
-    larger before it and nothing smaller after (quickselect; no nans)."""
+    larger before it and nothing smaller after (quickselect with a three-way partition:
+    integer frames repeat border values a lot; no nans)."""
     hi -= 1
     while hi > lo:
-        mid = (lo + hi) // 2  # median-of-three pivot, moved to hi
-        if a[mid] < a[lo]:
-            a[mid], a[lo] = a[lo], a[mid]
-        if a[hi] < a[lo]:
-            a[hi], a[lo] = a[lo], a[hi]
-        if a[mid] < a[hi]:
-            a[mid], a[hi] = a[hi], a[mid]
-        pivot = a[hi]
-        store = lo
-        for i in range(lo, hi):
-            if a[i] < pivot:
-                a[i], a[store] = a[store], a[i]
-                store += 1
-        a[store], a[hi] = a[hi], a[store]
-        if store == k:
-            return
-        if store < k:
-            lo = store + 1
+        x, y, z = a[lo], a[(lo + hi) // 2], a[hi]  # median-of-three pivot
+        pivot = max(min(x, y), min(max(x, y), z))
+        lt, i, gt = lo, lo, hi  # a[lo:lt] < pivot, a[lt:i] == pivot, a[gt + 1:hi + 1] > pivot
+        while i <= gt:
+            v = a[i]
+            if v < pivot:
+                a[i], a[lt] = a[lt], v
+                lt += 1
+                i += 1
+            elif v > pivot:
+                a[i], a[gt] = a[gt], v
+                gt -= 1
+            else:
+                i += 1
+        if k < lt:
+            hi = lt - 1
+        elif k > gt:
+            lo = gt + 1
         else:
-            hi = store - 1
+            return
 
 
 @_jit
@@ -153,7 +154,7 @@ def _border_quantiles(border, q_hi, q_lo):
     for j in range(2):
         q = q_hi if j == 0 else q_lo
         pos = q * (n - 1)
-        i = int(math.floor(pos))
+        i = math.floor(pos)
         f = pos - i
         _select(border, 0, top, i)
         if i + 1 >= n:
