@@ -945,8 +945,9 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
 
 
 def prepare() -> float:
-    """Compile every kernel a solve uses now — lost-in-space and tracking
-    (:mod:`starid.tracking_kernels`) — into numba's on-disk cache, and return the seconds
+    """Compile every kernel a solve uses now — lost-in-space, tracking
+    (:mod:`starid.tracking_kernels`) and the tracking windows' centroiding
+    (:mod:`starid.detect_roi_kernels`) — into numba's on-disk cache, and return the seconds
     it took: run once after an install (``python -m
     adfusion.starid.kernels``), and the first solve of every later process loads the
     compiled code (~1 s) instead of compiling it (10–40 s). The cache is keyed by the
