@@ -188,7 +188,15 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
     """The windows' stars (see the module docstring). ``pred``: (n, 2) predictions inside
     the frame; ``floor``: the noise floor. Returns (code (n,): 0 or the rejection reason,
     cx, cy, area (0 where nothing was found), flux, peak, good: the accepted windows
-    brightest first, background median, noise median, pixels above threshold)."""
+    brightest first, background median, noise median, pixels above threshold).
+
+    >>> img = np.full((20, 20), 100, np.uint16)
+    >>> img[9, 9:11] = 300
+    >>> code, cx, cy, area, *_ = window_centroids(img, np.array([[9.4, 9.2]]), 4, 5.0,
+    ...                                           np.float32(0.5), 2, 3.0, 3.0, True)
+    >>> code.tolist(), cx.tolist(), cy.tolist(), area.tolist()
+    ([0], [9.5], [9.0], [2])
+    """
     h_img, w_img = img.shape
     n = pred.shape[0]
     side = 2 * half + 1
