@@ -266,7 +266,7 @@ def test_a_file_that_is_no_camera_yaml_is_one_line_naming_it(tmp_path, capsys, t
     exception set" (the new-user trial); it is a ValueError naming the file."""
     p = tmp_path / "notes.md"
     p.write_text(text)
-    with pytest.raises(ValueError, match="notes.md"):
+    with pytest.raises(ValueError, match=r"notes\.md"):
         read_camera_yaml(p)
     import cv2
 

@@ -20,6 +20,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
+from typing import NoReturn
 
 from adfusion.app.errors import UsageError
 
@@ -139,10 +140,32 @@ def describe_error(exc: BaseException) -> str:
             "traceback)")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its errors in one line (argparse prints the whole usage block first):
+    what is wrong, the closest flag for a misspelt one, and where the flags are listed."""
+
+    def error(self, message: str) -> NoReturn:
+        import difflib
+
+        hint = f" (see `{self.prog} --help`)"
+        if message.startswith("unrecognized arguments:"):
+            words = message.split(":", 1)[1].split()
+            flags = [o for a in self._actions for o in a.option_strings]
+            for sp in self._subparsers._group_actions if self._subparsers else []:
+                for name, sub in getattr(sp, "choices", {}).items():
+                    if name in sys.argv[1:2]:
+                        flags += [o for a in sub._actions for o in a.option_strings]
+            close = [m for w in words if w.startswith("-")
+                     for m in difflib.get_close_matches(w, flags, n=1)]
+            if close:
+                hint = f" (did you mean {close[0]}?)"
+        self.exit(2, f"{self.prog}: error: {message}{hint}\n")
+
+
 def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     """The whole command line. ``bench=False`` leaves out the benchmark commands' own
     arguments, whose modules import numpy and OpenCV (``adfusion --help`` stays instant)."""
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="adfusion",
         description="Star-camera attitude determination: detection, identification, fusion.",
     )
