@@ -394,6 +394,17 @@ def quiet_opencv() -> None:
             cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
 
 
+def one_line_warnings(prog: str) -> None:
+    """Warnings (a skipped image, a damaged chunk) as ``prog: warning: …`` lines, not Python's
+    ``file.py:250: McapReadWarning: …`` plus the source line that raised them."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
+
+    warnings.showwarning = show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -402,6 +413,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
     except SystemExit as e:  # --help (0) or a usage error (2), already printed by argparse
         return e.code if isinstance(e.code, int) else 2
+    one_line_warnings(f"adfusion {args.command}")
     # One handler for every command: a failure is one line on stderr and an exit code —
     # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
