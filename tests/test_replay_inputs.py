@@ -197,6 +197,9 @@ def test_missing_pieces_are_named_in_one_line(flight, tmp_path, capsys):
          "no such file"),
         (["replay", str(folder), "-o", str(tmp_path / "o.mcap"), "--fps", "10", "--camera",
           str(tmp_path / "none.yaml")], "--camera"),
+        # a missing --imu file is named before the mounting it would need (new-user trial)
+        (["replay", str(folder), "-o", str(tmp_path / "o.mcap"), "--fps", "10", "--fov",
+          "10", "--imu", str(tmp_path / "nosuch.csv")], "nosuch.csv: no such file"),
         (["replay", str(sim), "-o", str(tmp_path / "o.mcap"), "--mount", "1,0"], "--mount"),
         (["replay", str(sim), "-o", str(tmp_path / "o.mcap"), "--start-utc", "yesterday"],
          "start"),
