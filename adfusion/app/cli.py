@@ -696,12 +696,31 @@ def _write_products(out_dir, name: str, rec: dict, sol, args: argparse.Namespace
         write_corr(out_dir / f"{stem}.corr", sol, rec["matches"])
 
 
+def _no_evidence(out: dict) -> bool:
+    """The search found nothing near an identification (no candidate, or the best one's
+    false-match probability is near 1): a wrong scale is the usual cause."""
+    import re
+
+    reason = out.get("reason", "")
+    if reason.startswith("no match"):
+        return True
+    m = re.search(r"best candidate has p_false ([0-9.eE+-]+)", reason)
+    return m is not None and float(m.group(1)) >= 0.01
+
+
 def _print_solution(out: dict) -> None:
     print(f"{out.get('detections', 0)} stars detected in {out.get('detect_ms', 0)} ms; "
           f"identification {'ok' if out['ok'] else 'NOT ok'} in {out.get('time_ms', 0)} ms "
           f"({out.get('path') or '-'})")
     if not out["ok"]:
         print(f"reason: {out['reason']}")
+        cands = out.get("candidates") or []
+        if cands:
+            print(f"{len(cands)} candidate(s) below the threshold: --json lists them")
+        if _no_evidence(out):
+            print("hint: nothing came close to an identification — check the field of view "
+                  "(--fov DEG, or a range --fov LO:HI when the lens is not known), the camera "
+                  "file, or the detection threshold (--sigma)")
         return
     print(f"boresight RA {out['ra_deg']:.5f}°  Dec {out['dec_deg']:+.5f}°  roll "
           f"{out['roll_deg']:.4f}°   (1σ {out['sigma_arcsec'][0]:.1f}″ / "
