@@ -275,7 +275,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--fov", metavar="DEG|LO:HI", help="horizontal field of view (a "
                    "pinhole camera of the frame size) when there is no camera model: degrees "
                    "or a range LO:HI, searched for lost-in-space")
-    g.add_argument("--fps", type=float, help="frame rate of a folder or video (frame i at "
+    g.add_argument("--fps", type=positive_float, help="frame rate of a folder or video (frame i at "
                    "i/fps s)")
     g.add_argument("--timestamps", metavar="CSV", help="frame times of a folder: CSV with "
                    "columns filename,t_s")
@@ -709,7 +709,8 @@ def _no_evidence(out: dict) -> bool:
 
 
 def _print_solution(out: dict) -> None:
-    print(f"{out.get('detections', 0)} stars detected in {out.get('detect_ms', 0)} ms; "
+    n_det = out.get("detections", 0)
+    print(f"{n_det} star{'' if n_det == 1 else 's'} detected in {out.get('detect_ms', 0)} ms; "
           f"identification {'ok' if out['ok'] else 'NOT ok'} in {out.get('time_ms', 0)} ms "
           f"({out.get('path') or '-'})")
     if not out["ok"]:
@@ -742,6 +743,10 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
     root = cache.cache_dir()
     if args.action == "clear":
+        kinds = sorted({e.kind for e in cache.cache_info()})
+        if args.kind is not None and args.kind not in kinds:
+            raise UsageError(f"--kind {args.kind!r}: no cache entries of that kind (kinds "
+                             f"present: {', '.join(kinds) or 'none'})")
         n, size = cache.cache_clear(args.kind)
         msg = {"removed": n, "bytes": size, "dir": str(root) if root else None}
         print(json.dumps(msg) if args.json else
