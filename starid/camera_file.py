@@ -66,7 +66,7 @@ def read_camera_yaml(path: str | os.PathLike[str]) -> Camera:
         raise FileNotFoundError(f"camera file not found: {p}")
     try:
         fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
-    except cv2.error:
+    except (cv2.error, SystemError):  # SystemError: OpenCV's parser failed (Markdown, empty)
         fs = None
     if fs is None or not fs.isOpened():
         raise ValueError(f"{p}: not a YAML camera file OpenCV can read")

@@ -26,7 +26,8 @@ def shared_dir() -> Path:
     """Path to ``shared/``; skips the test when it is absent (a bare clone)."""
     d = find_shared()
     if d is None:
-        pytest.skip("../shared is not beside the checkout (set ADFUSION_SHARED to point at it)")
+        pytest.skip("../shared is not beside the checkout (set ADFUSION_SHARED to the "
+                    "shared folder, the one that holds data/)")
     return d
 
 

@@ -71,3 +71,33 @@ def test_an_undecodable_image_is_one_line_on_stderr(tmp_path):
     assert p.returncode == 1
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "broken.png" in lines[0], p.stderr
+
+
+def test_a_wrong_flag_is_one_line_with_the_closest_flag():
+    """argparse printed a 9-line usage block before the error, and a misspelt flag came
+    from the top-level parser with no hint (new-user trial)."""
+    import subprocess
+    import sys
+
+    run = [sys.executable, "-P", "-m", "adfusion.app.cli"]
+    p = subprocess.run([*run, "solve", "x.tif", "--fovv", "11"], capture_output=True,
+                       text=True, timeout=60)
+    assert p.returncode == 2 and p.stderr.strip().splitlines() == [
+        "adfusion: error: unrecognized arguments: --fovv 11 (did you mean --fov?)"]
+    p = subprocess.run([*run, "solve", "x.tif", "--fov-error", "-1"], capture_output=True,
+                       text=True, timeout=60)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 2 and len(lines) == 1 and "--fov-error" in lines[0]
+    assert "adfusion solve --help" in lines[0]
+
+
+def test_a_wrong_field_of_view_gets_a_hint(shared_dir, capsys):
+    """An 11.4° frame solved with --fov 20 said only "ambiguous: weak evidence … p_false 1"
+    (new-user trial): a failure with nothing near an identification names the likely cause
+    and the flag for an unknown lens."""
+    frame = sorted((shared_dir / "data" / "real-images").glob("*.tiff"))[3]
+    assert main(["solve", str(frame), "--fov", "20"]) == 1
+    out = capsys.readouterr().out
+    assert "hint:" in out and "--fov LO:HI" in out
+    assert main(["solve", str(frame), "--fov", "11.4", "--fov-error", "0.5"]) == 0
+    assert "hint:" not in capsys.readouterr().out

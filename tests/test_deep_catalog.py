@@ -179,6 +179,10 @@ def test_two_solves_leave_one_index_and_cache_commands(fresh_cache, capsys):
     assert main(["cache", "clear", "--kind", "pattern-index"]) == 0
     assert "removed 1 cache entry" in capsys.readouterr().out
     assert not list(fresh_cache.glob("pattern-index-*.npz"))
+    # a kind that is not there is a usage error naming the kinds present, not "removed 0"
+    assert main(["cache", "clear", "--kind", "pattern-indx"]) == 2
+    err = capsys.readouterr().err
+    assert "pattern-indx" in err and "hip2-raw" in err
 
 
 def test_solve_with_every_hipparcos_star_fits_in_memory(capsys):

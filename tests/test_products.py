@@ -256,3 +256,22 @@ def test_cedar_frames_wcs_reproduces_our_projection(shared_dir, tmp_path, capsys
         w = astropy_wcs.WCS(fits.getheader(out / f"{name}.wcs"))
         theirs = np.stack(w.all_world2pix(c["ra_deg"], c["dec_deg"], 0), -1)
         assert np.max(np.linalg.norm(theirs - ours, axis=1)) < 0.05, name
+
+
+@pytest.mark.parametrize("text", ["# Notes\n\nSome *Markdown* here: a: b: c\n", "",
+                                  "site_name: x\nhooks:\n  - a.py\nnav:\n  - Home: index.md\n"])
+def test_a_file_that_is_no_camera_yaml_is_one_line_naming_it(tmp_path, capsys, text):
+    """A Markdown, empty or unrelated YAML file given as --camera once ended in
+    "internal error: SystemError: <class 'cv2.FileStorage'> returned a result with an
+    exception set" (the new-user trial); it is a ValueError naming the file."""
+    p = tmp_path / "notes.md"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=r"notes\.md"):
+        read_camera_yaml(p)
+    import cv2
+
+    img = tmp_path / "sky.png"
+    cv2.imwrite(str(img), np.zeros((48, 64), np.uint8))
+    assert main(["solve", str(img), "--camera", str(p)]) in (1, 2)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "notes.md" in err[0] and "internal error" not in err[0]

@@ -20,6 +20,7 @@ import os
 import sys
 import time
 from collections.abc import Sequence
+from typing import NoReturn
 
 from adfusion.app.errors import UsageError
 
@@ -139,10 +140,32 @@ def describe_error(exc: BaseException) -> str:
             "traceback)")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse with its errors in one line (argparse prints the whole usage block first):
+    what is wrong, the closest flag for a misspelt one, and where the flags are listed."""
+
+    def error(self, message: str) -> NoReturn:
+        import difflib
+
+        hint = f" (see `{self.prog} --help`)"
+        if message.startswith("unrecognized arguments:"):
+            words = message.split(":", 1)[1].split()
+            flags = [o for a in self._actions for o in a.option_strings]
+            for sp in self._subparsers._group_actions if self._subparsers else []:
+                for name, sub in getattr(sp, "choices", {}).items():
+                    if name in sys.argv[1:2]:
+                        flags += [o for a in sub._actions for o in a.option_strings]
+            close = [m for w in words if w.startswith("-")
+                     for m in difflib.get_close_matches(w, flags, n=1)]
+            if close:
+                hint = f" (did you mean {close[0]}?)"
+        self.exit(2, f"{self.prog}: error: {message}{hint}\n")
+
+
 def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     """The whole command line. ``bench=False`` leaves out the benchmark commands' own
     arguments, whose modules import numpy and OpenCV (``adfusion --help`` stays instant)."""
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="adfusion",
         description="Star-camera attitude determination: detection, identification, fusion.",
     )
@@ -252,7 +275,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--fov", metavar="DEG|LO:HI", help="horizontal field of view (a "
                    "pinhole camera of the frame size) when there is no camera model: degrees "
                    "or a range LO:HI, searched for lost-in-space")
-    g.add_argument("--fps", type=float, help="frame rate of a folder or video (frame i at "
+    g.add_argument("--fps", type=positive_float, help="frame rate of a folder or video (frame i at "
                    "i/fps s)")
     g.add_argument("--timestamps", metavar="CSV", help="frame times of a folder: CSV with "
                    "columns filename,t_s")
@@ -371,6 +394,17 @@ def quiet_opencv() -> None:
             cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
 
 
+def one_line_warnings(prog: str) -> None:
+    """Warnings (a skipped image, a damaged chunk) as ``prog: warning: …`` lines, not Python's
+    ``file.py:250: McapReadWarning: …`` plus the source line that raised them."""
+    import warnings
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"{prog}: warning: {message}", file=sys.stderr if file is None else file)
+
+    warnings.showwarning = show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``adfusion`` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -379,6 +413,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = build_parser(bench=bool(argv) and argv[0] == "bench").parse_args(argv)
     except SystemExit as e:  # --help (0) or a usage error (2), already printed by argparse
         return e.code if isinstance(e.code, int) else 2
+    one_line_warnings(f"adfusion {args.command}")
     # One handler for every command: a failure is one line on stderr and an exit code —
     # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
@@ -661,12 +696,32 @@ def _write_products(out_dir, name: str, rec: dict, sol, args: argparse.Namespace
         write_corr(out_dir / f"{stem}.corr", sol, rec["matches"])
 
 
+def _no_evidence(out: dict) -> bool:
+    """The search found nothing near an identification (no candidate, or the best one's
+    false-match probability is near 1): a wrong scale is the usual cause."""
+    import re
+
+    reason = out.get("reason", "")
+    if reason.startswith("no match"):
+        return True
+    m = re.search(r"best candidate has p_false ([0-9.eE+-]+)", reason)
+    return m is not None and float(m.group(1)) >= 0.01
+
+
 def _print_solution(out: dict) -> None:
-    print(f"{out.get('detections', 0)} stars detected in {out.get('detect_ms', 0)} ms; "
+    n_det = out.get("detections", 0)
+    print(f"{n_det} star{'' if n_det == 1 else 's'} detected in {out.get('detect_ms', 0)} ms; "
           f"identification {'ok' if out['ok'] else 'NOT ok'} in {out.get('time_ms', 0)} ms "
           f"({out.get('path') or '-'})")
     if not out["ok"]:
         print(f"reason: {out['reason']}")
+        cands = out.get("candidates") or []
+        if cands:
+            print(f"{len(cands)} candidate(s) below the threshold: --json lists them")
+        if _no_evidence(out):
+            print("hint: nothing came close to an identification — check the field of view "
+                  "(--fov DEG, or a range --fov LO:HI when the lens is not known), the camera "
+                  "file, or the detection threshold (--sigma)")
         return
     print(f"boresight RA {out['ra_deg']:.5f}°  Dec {out['dec_deg']:+.5f}°  roll "
           f"{out['roll_deg']:.4f}°   (1σ {out['sigma_arcsec'][0]:.1f}″ / "
@@ -688,6 +743,10 @@ def cmd_cache(args: argparse.Namespace) -> int:
 
     root = cache.cache_dir()
     if args.action == "clear":
+        kinds = sorted({e.kind for e in cache.cache_info()})
+        if args.kind is not None and args.kind not in kinds:
+            raise UsageError(f"--kind {args.kind!r}: no cache entries of that kind (kinds "
+                             f"present: {', '.join(kinds) or 'none'})")
         n, size = cache.cache_clear(args.kind)
         msg = {"removed": n, "bytes": size, "dir": str(root) if root else None}
         print(json.dumps(msg) if args.json else

@@ -58,6 +58,7 @@ class ReplaySummary:
     identified: int = 0
     modes: dict[str, int] = field(default_factory=dict)
     rejected_fixes: int = 0
+    restarts: int = 0  # frames whose fix restarted the filter (its own history discarded)
     frames_with_3_stars: int = 0
     identified_with_3_stars: int = 0
     errors_deg: list[float] = field(default_factory=list)
@@ -100,6 +101,12 @@ class ReplaySummary:
             lines.append(f"not identified: {sum(self.not_identified.values())} frame(s) — "
                          + "; ".join(f"{why}: {n}" for why, n in sorted(
                              self.not_identified.items(), key=lambda kv: -kv[1])))
+        if self.restarts:
+            lines.append(f"filter restarted from a lost-in-space fix at {self.restarts} of "
+                         f"{self.frames} frames (no rate between frames, or fixes its gate kept"
+                         " rejecting): rates and NIS across a restart mean nothing; frames "
+                         "that are not a sequence are solved one by one with `adfusion solve "
+                         "DIR`")
         if self.frames_with_3_stars:
             pct = 100 * self.identified_with_3_stars / self.frames_with_3_stars
             lines.append(f"frames with ≥ 3 catalogue stars in view: {self.frames_with_3_stars},"
@@ -391,6 +398,8 @@ class SummarySink:
         sol = rec.solution
         if sol is not None:
             s.modes[sol.mode] = s.modes.get(sol.mode, 0) + 1
+        if any("re-initialised" in why for _, why in rec.rejected):
+            s.restarts += 1
         if rec.fix_accepted:
             s.identified += 1
         else:

@@ -478,6 +478,8 @@ def open_input(path: str | os.PathLike[str], *, fps: float | None = None,
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
+    if imu is not None and not os.path.exists(imu):  # before any complaint about config
+        raise FileNotFoundError(f"--imu {imu}: no such file")
     if p.is_dir():
         if is_ros2_bag(p):
             return Ros2BagInput(p, image_topic=image_topic, imu_topic=imu_topic,
