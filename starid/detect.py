@@ -442,6 +442,19 @@ _SIMD_SORT16 = _has_simd_sort16()
 _SORT16_MAX_RANGE = 65535
 
 
+def _within_level(value, below, equal, n: int, k: int, step):
+    """The k-th of n samples interpolated inside its quantisation level of width ``step``
+    (``below`` samples under the level, ``equal`` in it), as the sort and the histogram
+    paths both need it."""
+    m = n
+    if n >= 128:  # as _interpolated_quantile: every other sorted sample
+        m = (n + 1) // 2
+        below_h = (below + 1) // 2
+        equal, below = (below + equal + 1) // 2 - below_h, below_h
+    rank = (k + 0.5) / n * m
+    return value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
+
+
 def _quantiles_by_sort16(
     samples: np.ndarray, first: int, k_lo: int, k_med: int, step: float, interpolate_lo: bool,
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -467,13 +480,7 @@ def _quantiles_by_sort16(
             key = offset + v
             below = np.searchsorted(keys, key, "left") - start
             equal = np.searchsorted(keys, key, "right") - start - below
-            m = n
-            if n >= 128:  # as _interpolated_quantile: every other sorted sample
-                m = (n + 1) // 2
-                below_h = (below + 1) // 2
-                equal, below = (below + equal + 1) // 2 - below_h, below_h
-            rank = (k + 0.5) / n * m
-            value = value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
+            value = _within_level(value, below, equal, n, k, step)
         out.append(value)
     return out[0], out[1]
 
@@ -544,13 +551,7 @@ def _quantiles_by_histogram(
             return value
         equal = hist[r, b]
         below = cum[r, b] - equal
-        m = n
-        if n >= 128:  # as _interpolated_quantile: every other sorted sample
-            m = (n + 1) // 2
-            below_h = (below + 1) // 2
-            equal, below = (below + equal + 1) // 2 - below_h, below_h
-        rank = (k + 0.5) / n * m
-        return value - 0.5 * step + step * (rank - below) / np.maximum(equal, 1)
+        return _within_level(value, below, equal, n, k, step)
 
     lo, med = order_stat(k_lo, interpolate_lo), order_stat(k_med, True)
     return (lo, med, at_end) if ends else (lo, med)
