@@ -49,11 +49,8 @@ from scipy.stats import chi2
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from adfusion.starid import Prior, detect
 from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
-from adfusion.starid.solver import Solver
 
-from adfusion.basilisk.acs import attitude_errors_rad, nees, summarize
+from adfusion.basilisk.acs import attitude_errors_rad, nees, sky_and_solver, summarize
 from adfusion.basilisk.scenarios import run_loop, scenario
 
 ESTIMATORS = ("adfusion", "adfusion_st", "ukf")
@@ -160,12 +157,7 @@ def _gyro_loop_cost(run, n: int = 2000) -> list[float]:
 def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s: float = 150.0,
         cost_seed: int | None = 0) -> dict[str, Any]:
     cfg = scenario(name, duration_s=duration_s)
-    sky = Catalog.hipparcos(mag_limit=cfg.render_mag_limit, epoch=cfg.catalog_epoch)
-    cat = Catalog.hipparcos(mag_limit=cfg.solver_mag_limit, epoch=cfg.catalog_epoch)
-    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg),
-                    centroid_sigma_px=cfg.centroid_sigma_px)
-    solver.warm_up()
-    solver.warm_up_tracking()  # the compiled tracking path, before the loop
+    sky, cat, solver = sky_and_solver(cfg)
     per_seed, ens, cost = [], {k: [] for k in ESTIMATORS}, None
     t_grid = None
     for seed in range(seeds):

@@ -241,6 +241,19 @@ def _camera_figures(run: LoopRun, wrong_deg: float) -> dict[str, Any]:
     return out
 
 
+def sky_and_solver(cfg: Any) -> tuple[Catalog, Catalog, Solver]:
+    """The rendered sky, the solver's catalogue and the warmed-up solver of a scenario's
+    camera (``cfg`` from :func:`adfusion.basilisk.scenarios.scenario`): what every loop of a
+    run shares."""
+    sky = Catalog.hipparcos(mag_limit=cfg.render_mag_limit, epoch=cfg.catalog_epoch)
+    cat = Catalog.hipparcos(mag_limit=cfg.solver_mag_limit, epoch=cfg.catalog_epoch)
+    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg),
+                    centroid_sigma_px=cfg.centroid_sigma_px)
+    solver.warm_up()
+    solver.warm_up_tracking()  # the compiled tracking path, before the loop
+    return sky, cat, solver
+
+
 def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
             duration_s: float | None = None, loops: tuple[str, ...] = LOOPS,
             images: str = "preview", settle_s: float = 150.0,
@@ -252,12 +265,7 @@ def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
     cfg = scenario(name, **overrides)
     walls: dict[str, float] = {}
     t0 = time.perf_counter()
-    sky = Catalog.hipparcos(mag_limit=cfg.render_mag_limit, epoch=cfg.catalog_epoch)
-    cat = Catalog.hipparcos(mag_limit=cfg.solver_mag_limit, epoch=cfg.catalog_epoch)
-    solver = Solver(cat, Camera.pinhole(cfg.width_px, cfg.width_px, cfg.fov_deg),
-                    centroid_sigma_px=cfg.centroid_sigma_px)
-    solver.warm_up()
-    solver.warm_up_tracking()  # the compiled tracking path, before the loop
+    sky, cat, solver = sky_and_solver(cfg)
     walls["setup"] = time.perf_counter() - t0
     runs: dict[str, LoopRun] = {}
     for loop in ("adfusion", "truth", "ukf", "adfusion_st"):
