@@ -280,13 +280,17 @@ def _detect_compiled(img: np.ndarray, pred: np.ndarray, half: int, sigma: float,
                                 max_elongation is not None)
     bad = np.flatnonzero(code)
     if len(bad):
-        found = area[bad] > 0
-        rx = np.where(found, cx[bad], pred[bad, 0]).tolist()
-        ry = np.where(found, cy[bad], pred[bad, 1]).tolist()
-        rejected += [Rejection(x, y, a, _REASONS[c]) for x, y, a, c in
-                     zip(rx, ry, area[bad].tolist(), code[bad].tolist(), strict=True)]
+        px, py = pred[bad].T.tolist()
+        for x, y, a, c, i in zip(cx[bad].tolist(), cy[bad].tolist(), area[bad].tolist(),
+                                 code[bad].tolist(), range(len(bad)), strict=True):
+            # at the blob's centroid when one was found, else at the prediction
+            rejected.append(Rejection(x, y, a, _REASONS[c]) if a > 0 else
+                            Rejection(px[i], py[i], a, _REASONS[c]))
+    xy = np.empty((len(good), 2))
+    xy[:, 0] = cx[good]
+    xy[:, 1] = cy[good]
     return Detections(
-        xy=np.column_stack([cx[good], cy[good]]),
+        xy=xy,
         flux=flux[good],
         area=area[good],
         peak=peak[good],
@@ -325,6 +329,11 @@ class TrackingWindows:
         min_found, min_found_fraction: fewer stars than this many, or than this share of
             the windows, and ``detect`` returns None: the prior may be off by more than a
             window.
+        max_windows: windows around at most this many predicted stars, the brightest in
+            the catalogue (None: the solver's ``max_detections`` + 10). The solver
+            identifies from its brightest ``max_detections`` detections only, so windows
+            on fainter stars cost time and change nothing; the 10 spare cover stars not
+            found, clipped or at the edge.
 
     Example:
         >>> from adfusion import starid
@@ -342,7 +351,9 @@ class TrackingWindows:
     def __init__(self, solver: Any, *, max_half_px: int = 12, star_px: float = 4.0,
                  isolation_px: float | None = 6.0, edge_px: float = 3.0, sigma: float = 5.0,
                  min_area: int = 2, max_elongation: float | None = 3.0, min_found: int = 3,
-                 min_found_fraction: float = 0.25) -> None:
+                 min_found_fraction: float = 0.25, max_windows: int | None = None) -> None:
+        if not (math.isfinite(sigma) and sigma > 0):
+            raise ValueError(f"sigma must be a positive number, got {sigma!r}")
         self.camera = solver.camera
         self.vectors = np.asarray(solver.catalog.vectors, dtype=np.float64)
         self._catalog = solver.catalog
@@ -357,12 +368,21 @@ class TrackingWindows:
             i, j, _ = solver.catalog.pairs_within(isolation_px * self.camera.pixel_scale_rad)
             self.crowded[i] = self.crowded[j] = True
         self.min_found = int(min_found)
+        if max_windows is None:
+            max_windows = int(getattr(solver, "max_detections", 30)) + 10
+        if not (isinstance(max_windows, int | np.integer) and max_windows >= 1):
+            raise ValueError(f"max_windows must be an integer ≥ 1, got {max_windows!r}")
+        self.max_windows = int(max_windows)
+        self._mag = np.asarray(solver.catalog.mag, dtype=np.float64)
         self.min_found_fraction = float(min_found_fraction)
         cam = self.camera
         self._half_diag = math.radians(cam.diagonal_fov_deg) / 2
         self._cone_margin = math.radians(1.0)
         self._cone_axis: np.ndarray | None = None
         self._cone: np.ndarray = np.zeros(0, np.int64)
+        # an undistorted pinhole projects with the tracking path's compiled kernel
+        self._ideal = cam._ideal_pinhole
+        self._no_xy = np.zeros((0, 2))
 
     def half_px(self, prior: Any) -> int:
         """The window half-size a prior needs: its 3σ (``k``·σ) cone and half its smear in
@@ -370,20 +390,35 @@ class TrackingWindows:
         pix = self.camera.pixel_scale_rad
         err = math.radians(prior.k * prior.sigma_deg) / pix
         if prior.smear_cam_rad is not None:
-            err += 0.5 * float(np.linalg.norm(prior.smear_cam_rad)) / pix
+            x, y, z = prior.smear_cam_rad.tolist()
+            err += 0.5 * math.sqrt(x * x + y * y + z * z) / pix
         return math.ceil(err + self.star_px)
 
     def predict(self, q_cam_icrs: ArrayLike) -> np.ndarray:
-        """(N, 2) pixel positions of the catalogue stars in the frame at ``q_cam_icrs``."""
+        """(N, 2) pixel positions of the catalogue stars in the frame at ``q_cam_icrs``,
+        brightest first."""
         return self._predict(rot.to_matrix(q_cam_icrs))[0]
 
     def _predict(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Positions and crowded flags of the catalogue stars in the frame (``r``: R_cam_icrs);
-        the catalogue cone around the boresight is kept until it moves by ``_cone_margin``."""
+        """Positions and crowded flags of the catalogue stars in the frame (``r``: R_cam_icrs),
+        brightest first; the catalogue cone around the boresight is kept until it moves by
+        ``_cone_margin``."""
         axis = r[2]
         if self._cone_axis is None or float(axis @ self._cone_axis) < math.cos(self._cone_margin):
-            self._cone = self._catalog.cone(axis, self._half_diag + 2 * self._cone_margin)
+            cone = self._catalog.cone(axis, self._half_diag + 2 * self._cone_margin)
+            # brightest first: the stars in view come out in that order (max_windows)
+            self._cone = cone[np.argsort(self._mag[cone], kind="stable")]
             self._cone_axis = axis
+        if self._ideal is not None:
+            # (u·z, v·z, z) = H R r over the cone's rows, compiled (the frame test included)
+            from adfusion.starid import tracking_kernels as tk  # compiled on first use
+
+            m1, off, a, c = self._ideal
+            cam = self.camera
+            xy, rows, _ = tk.predict_pinhole(self.vectors, self._cone, False, r, a, c, 0.0,
+                                             -0.5, cam.width - 0.5, cam.height - 0.5,
+                                             self._no_xy, m1, off)
+            return xy, self.crowded[rows]
         v = self.vectors[self._cone] @ r.T
         front = v[:, 2] > 0
         xy = self.camera.vectors_to_pixels(v[front])
@@ -399,9 +434,19 @@ class TrackingWindows:
         xy, crowded = self._predict(rot.to_matrix(prior.q_cam_icrs))
         if not len(xy) or crowded.all():
             return None
-        det = detect_windows(image, xy[~crowded], half, **self.kw)
-        tried = int(np.count_nonzero(~crowded))
-        if len(det) < max(self.min_found, self.min_found_fraction * tried):
+        img = image if isinstance(image, np.ndarray) else np.asarray(image)
+        side = 2 * half + 1
+        if img.ndim != 2 or img.dtype.kind not in "uif" or half < 2 or side > min(img.shape):
+            # what detect_windows refuses, in its words
+            return detect_windows(img, xy[~crowded][: self.max_windows], half, **self.kw)
+        # the predictions are finite and inside the frame (``_predict``): straight to the
+        # compiled centroiding, without detect_windows' checks of arbitrary input
+        use = np.ascontiguousarray(xy[~crowded][: self.max_windows])
+        kw = self.kw
+        det = _detect_compiled(img, use, half, kw["sigma"], kw["min_area"], kw["edge_px"],
+                               kw["max_elongation"], [])
+        if len(det) < max(self.min_found, self.min_found_fraction * len(use)):
             return None
-        det.rejected.extend(Rejection(x, y, 0, "crowded") for x, y in xy[crowded].tolist())
+        if crowded.any():
+            det.rejected.extend(Rejection(x, y, 0, "crowded") for x, y in xy[crowded].tolist())
         return det

@@ -214,7 +214,6 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
     bgs = np.empty(n, np.float32)
     noises = np.empty(n, np.float32)
     bright = 0
-    win = np.empty((side, side), np.float32)
     val = np.empty((side, side), np.float32)
     border = np.empty(nb, np.float32)
     lab = np.zeros((side, side), np.int64)
@@ -222,7 +221,7 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
     ring = np.zeros((side, side), np.bool_)
     wcol = np.empty(side, np.float32)
     wrow = np.empty(side, np.float32)
-    rowbuf = np.empty(side, np.float32)
+    rowbuf = np.zeros(side, np.float32)
     area = np.empty(side * side + 1, np.int64)  # per blob (label), reused by each window
     flux = np.empty(side * side + 1)
     peak = np.empty(side * side + 1)
@@ -233,18 +232,17 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
     for k in range(n):
         x0 = min(max(int(np.rint(pred[k, 0])) - half, 0), w_img - side)
         y0 = min(max(int(np.rint(pred[k, 1])) - half, 0), h_img - side)
-        for y in range(side):
-            for x in range(side):
-                win[y, x] = np.float32(img[y0 + y, x0 + x])
+        # the border, straight from the image (float32, in the order the window's copy
+        # gave it)
         m = 0
         for x in range(side):
-            border[m] = win[0, x]
-            border[m + side] = win[side - 1, x]
+            border[m] = np.float32(img[y0, x0 + x])
+            border[m + side] = np.float32(img[y0 + side - 1, x0 + x])
             m += 1
         m = 2 * side
         for y in range(1, side - 1):
-            border[m] = win[y, 0]
-            border[m + side - 2] = win[y, side - 1]
+            border[m] = np.float32(img[y0 + y, x0])
+            border[m + side - 2] = np.float32(img[y0 + y, x0 + side - 1])
             m += 1
         bg, q_lo = _border_quantiles(border, 0.5, _P_MINUS_1SIGMA)
         noise = np.float32(bg - q_lo)
@@ -252,20 +250,31 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
             noise = floor
         bgs[k], noises[k] = bg, noise
         thr = np.float32(sig32 * noise)
+        # the pixels above threshold, and their bounding box: every later pass over the
+        # window runs inside it (one pixel wider for the ring), in the same raster order
+        # and so with the same sums (outside it every term was zero)
+        y_lo, y_hi, x_lo, x_hi = side, -1, side, -1
         for y in range(side):
             for x in range(side):
-                v = np.float32(win[y, x] - bg)
+                v = np.float32(np.float32(img[y0 + y, x0 + x]) - bg)
                 val[y, x] = v
-                lab[y, x] = 0
                 if v > thr:
                     lab[y, x] = -1
                     bright += 1
+                    y_lo, y_hi = min(y_lo, y), max(y_hi, y)
+                    x_lo, x_hi = min(x_lo, x), max(x_hi, x)
+                else:
+                    lab[y, x] = 0
+        if y_hi < 0:
+            code[k] = _NOT_FOUND
+            continue
         # 8-connected blobs by flood fill, numbered by their first 2×2 block in raster
         # order (OpenCV's block-based labelling of the stacked windows: windows start on
-        # even rows, so the blocks line up with each window's)
+        # even rows, so the blocks line up with each window's); blocks outside the box
+        # hold no such pixel
         n_lab = 0
-        for by in range(0, side, 2):
-            for bx in range(0, side, 2):
+        for by in range(y_lo - y_lo % 2, y_hi + 1, 2):
+            for bx in range(x_lo - x_lo % 2, x_hi + 1, 2):
                 for y in range(by, min(by + 2, side)):
                     for x in range(bx, min(bx + 2, side)):
                         if lab[y, x] != -1:
@@ -285,15 +294,12 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
                                         lab[yy, xx] = n_lab
                                         stack[top] = yy * side + xx
                                         top += 1
-        if n_lab == 0:
-            code[k] = _NOT_FOUND
-            continue
         # per blob, in raster order: area, flux (float64, sequential), peak (the last pixel
         # at the maximum), clipped (touches a window edge that is not the frame's)
         for lb in range(n_lab + 1):
             area[lb], flux[lb], peak[lb], ipk[lb], clipped[lb] = 0, 0.0, -np.inf, 0, False
-        for y in range(side):
-            for x in range(side):
+        for y in range(y_lo, y_hi + 1):
+            for x in range(x_lo, x_hi + 1):
                 lb = lab[y, x]
                 if lb <= 0:
                     continue
@@ -321,12 +327,12 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
         if best == 0:
             code[k] = _NOT_FOUND
             continue
-        # centroid over the blob and its ring of 8-neighbours, background-subtracted, ≥ 0
-        for y in range(side):
-            for x in range(side):
-                ring[y, x] = False
-        for y in range(side):
-            for x in range(side):
+        # centroid over the blob and its ring of 8-neighbours, background-subtracted, ≥ 0;
+        # ``ring`` and ``rowbuf`` are all False / zero between windows
+        ry_lo, ry_hi = max(y_lo - 1, 0), min(y_hi + 1, side - 1)
+        rx_lo, rx_hi = max(x_lo - 1, 0), min(x_hi + 1, side - 1)
+        for y in range(y_lo, y_hi + 1):
+            for x in range(x_lo, x_hi + 1):
                 if lab[y, x] == best:
                     for yy in range(max(y - 1, 0), min(y + 2, side)):
                         for xx in range(max(x - 1, 0), min(x + 2, side)):
@@ -334,11 +340,16 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
         for x in range(side):
             wcol[x] = np.float32(0.0)
         for y in range(side):
-            for x in range(side):
+            if y < ry_lo or y > ry_hi:
+                wrow[y] = np.float32(0.0)  # a row of zeros (adds nothing to the columns)
+                continue
+            for x in range(rx_lo, rx_hi + 1):
                 v = val[y, x] if ring[y, x] and val[y, x] > 0 else np.float32(0.0)
                 rowbuf[x] = v
                 wcol[x] = np.float32(wcol[x] + v)  # numpy: sequential down the rows
-            wrow[y] = pairwise_sum32(rowbuf)  # numpy: pairwise along a row
+            wrow[y] = pairwise_sum32(rowbuf)  # numpy: pairwise along the whole row
+        for x in range(rx_lo, rx_hi + 1):
+            rowbuf[x] = np.float32(0.0)
         for i in range(side):
             wx[i] = np.float64(wcol[i])
             wy[i] = np.float64(wrow[i])
@@ -356,15 +367,18 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
         px_out[k] = ipk[best] % side + x0
         py_out[k] = ipk[best] // side + y0
         d2_out[k] = best_d2
+        sxy = 0.0
+        shape_test = check_elongation and area[best] >= _MIN_AREA_FOR_SHAPE \
+            and not clipped[best]
+        for y in range(ry_lo, ry_hi + 1):
+            for x in range(rx_lo, rx_hi + 1):
+                if shape_test and ring[y, x] and val[y, x] > 0:
+                    sxy += np.float64(val[y, x]) * y * x
+                ring[y, x] = False
         if clipped[best]:
             code[k] = _CLIPPED
             continue
-        if check_elongation and area[best] >= _MIN_AREA_FOR_SHAPE:
-            sxy = 0.0
-            for y in range(side):
-                for x in range(side):
-                    if ring[y, x] and val[y, x] > 0:
-                        sxy += np.float64(val[y, x]) * y * x
+        if shape_test:
             cxx = sxx / sw_safe - gx * gx
             cyy = syy / sw_safe - gy * gy
             cxy = sxy / sw_safe - gx * gy

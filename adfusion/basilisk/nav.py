@@ -58,14 +58,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from Basilisk.architecture import messaging, sysModel
 from numpy.typing import ArrayLike
 
-from adfusion.basilisk.camera import earth_limb_angle_rad, is_flooded
+from adfusion.basilisk.camera import CameraFrame, earth_limb_angle_rad, is_flooded
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
 from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.estimation.estimator import Estimator, StepRecord
@@ -120,6 +119,7 @@ class AdfusionNav(sysModel.SysModel):
         self.camera = camera
         self.q_body_cam = rot.canonical(rot.normalize(q_body_cam))
         self.R_body_cam = rot.to_matrix(self.q_body_cam)
+        self._boresight_body = self.R_body_cam[:, 2].copy()  # camera +z in the body frame
         self.st_sigma_rad = float(st_sigma_rad)
         self.earth_keepout_rad = None if earth_keepout_deg is None else \
             float(np.radians(earth_keepout_deg))
@@ -138,8 +138,7 @@ class AdfusionNav(sysModel.SysModel):
     # --- Basilisk interface ------------------------------------------------------------
 
     def Reset(self, CurrentSimNanos: int) -> None:
-        self.est = Estimator(self.solver, self.q_body_cam, q_body_icrs0=self._q0,
-                             sigma_attitude0_rad=self._sigma0, **self._est_kw)
+        self.est = self._estimator(self._q0, self._sigma0)
         self._seen = {"imu": -1, "st": -1, "tam": -1, "frame": -1}
         self._gyro_body: list[float] | None = None
         self.records: list[dict[str, Any]] = []
@@ -240,6 +239,16 @@ class AdfusionNav(sysModel.SysModel):
 
     # --- pieces ------------------------------------------------------------------------
 
+    def _estimator(self, q_body_icrs0, sigma_attitude0_rad: float) -> Estimator:
+        """The estimator; tracking frames detected in the windows (when on), placed from
+        the prior the solver then tracks from (one prior per frame, after propagating to
+        the frame's time)."""
+        kw = dict(self._est_kw)
+        if self.windows is not None:
+            kw["detect_tracking"] = self.windows.detect
+        return Estimator(self.solver, self.q_body_cam, q_body_icrs0=q_body_icrs0,
+                         sigma_attitude0_rad=sigma_attitude0_rad, **kw)
+
     def _frame_step(self, fr) -> int:
         t = fr.t_ns * 1e-9
         if is_flooded(fr.image):
@@ -250,8 +259,9 @@ class AdfusionNav(sysModel.SysModel):
             return 0
         if self.earth_keepout_rad is not None and self.est.initialized \
                 and self._view("trans") is not None:
-            q = rot.multiply(rot.inverse(self.q_body_cam), self.est.filter.q_body_icrs)
-            limb = earth_limb_angle_rad(rot.to_matrix(q)[2], self._views["trans"].r_BN_N)
+            # the estimated boresight in ICRS: R_body_icrsᵀ (camera +z in the body)
+            boresight = self._boresight_body @ rot.to_matrix(self.est.filter.q_body_icrs)
+            limb = earth_limb_angle_rad(boresight, self._views["trans"].r_BN_N)
             if limb < self.earth_keepout_rad:
                 rec = self.est.step(t)
                 rec.rejected.append(("camera", f"Earth's limb {np.degrees(limb):.1f}° from "
@@ -259,16 +269,8 @@ class AdfusionNav(sysModel.SysModel):
                                                "not used"))
                 self._keep(rec, fr)
                 return 0
-        det = None
-        if self.windows is not None:
-            prior = self.est.tracking_prior(self.est.exposure_s)
-            if prior is not None:
-                det = self.windows.detect(fr.image, prior)
-        if det is None:
-            rec = self.est.step(t, frame=fr.image)
-        else:
-            rec = self.est.step(t, detections=det)
-        self._keep(rec, fr, "frame" if det is None else "windows")
+        rec = self.est.step(t, frame=fr.image)  # windows or whole frame: rec.detection
+        self._keep(rec, fr, rec.detection)
         return int(rec.fix_accepted)
 
     def _st_step(self, t: float, q_inrtl2case: np.ndarray) -> int:
@@ -280,8 +282,7 @@ class AdfusionNav(sysModel.SysModel):
         cov = self.st_sigma_rad**2 * np.eye(3)
         if not self.est.initialized:
             self._q0 = q_body_icrs
-            self.est = Estimator(self.solver, self.q_body_cam, q_body_icrs0=q_body_icrs,
-                                 sigma_attitude0_rad=3 * self.st_sigma_rad, **self._est_kw)
+            self.est = self._estimator(q_body_icrs, 3 * self.st_sigma_rad)
             rec = self.est.step(t, gyro=self._gyro_body)
             rec.sensors.append("star tracker")
             self._keep(rec)
@@ -300,7 +301,9 @@ class AdfusionNav(sysModel.SysModel):
     def _keep(self, rec: StepRecord, frame=None, detection: str | None = None) -> None:
         if self.keep_records:
             # the frame's truth without its image (a 10-minute run's images would be GBs)
-            light = None if frame is None else replace(frame, image=None)
+            light = None if frame is None else CameraFrame(
+                frame.index, frame.t_ns, None, frame.q_cam_icrs, frame.star_xy, frame.hip,
+                frame.blinded)
             self.records.append({"rec": rec, "frame": light, "detection": detection,
                                  "P": None if self.est.filter is None
                                  else np.array(self.est.filter.P)})

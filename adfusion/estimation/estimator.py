@@ -65,6 +65,9 @@ class StepRecord:
     reinitialized: bool = False  # the filter was restarted from this step's star fix
     solution: Solution | None = None
     detections_xy: NDArray[np.float64] | None = None  # the frame's detections (pixels)
+    # how the frame's stars were found: "windows" (``detect_tracking`` around the stars
+    # the prior predicts), "frame" (the whole frame), "given" (detections passed in), ""
+    detection: str = ""
 
 
 class Estimator:
@@ -97,6 +100,12 @@ class Estimator:
             OEDIPUS-like replay: 1 → the estimate inside its 3σ bound 81 % of the time,
             4 → 99.3 % (RMS error 0.024° → 0.028°). Use 1 for truly independent fixes.
         detect: the detection function for ``frame=`` (default ``starid.detect``).
+        detect_tracking: for a frame with a tracking prior, ``detect_tracking(image,
+            prior)`` — detection around the stars the prior predicts, e.g.
+            :meth:`starid.detect_roi.TrackingWindows.detect` — returning detections, or
+            None to detect the whole frame with ``detect``. The prior is the one the solver
+            then tracks from (computed once per frame). The record says which ran
+            (``StepRecord.detection``).
         exposure_s: the camera's exposure (s), if known. With it, tracking priors carry
             the rotation during the exposure (the rate estimate × exposure, camera axes),
             so the solver trusts streaked stars only across their streaks and reports
@@ -130,6 +139,7 @@ class Estimator:
         min_cone_deg: float = 0.02,
         fix_covariance_scale: float = 4.0,
         detect: Callable | None = None,
+        detect_tracking: Callable | None = None,
         sigma_mag_rad: float = np.radians(1.0),
         video_only: bool = False,
         rate_walk_rad_s_sqrt_s: float = 0.025,
@@ -176,6 +186,7 @@ class Estimator:
         self.widen_per_miss = float(widen_per_miss)
         self.min_cone_deg = float(min_cone_deg)
         self._detect = detect
+        self._detect_tracking = detect_tracking
         self.filter = None
         if q_body_icrs0 is not None:
             self.filter = self._make_filter(rot.normalize(q_body_icrs0), sigma_attitude0_rad)
@@ -413,23 +424,43 @@ class Estimator:
         if self.solver is None:
             rec.rejected.append(("camera", "no solver configured"))
             return
-        if detections is None:
-            detect = self._detect
-            if detect is None:
-                from adfusion import starid
-                detect = starid.detect
-            try:
-                detections = detect(frame, self.solver.camera)
-            except (ValueError, TypeError, FileNotFoundError) as e:
-                rec.rejected.append(("camera", f"detection failed: {e}"))
-                return
-        rec.sensors.append("camera")
-        try:
-            arr = np.asarray(getattr(detections, "xy", detections), dtype=np.float64)
-            rec.detections_xy = arr[:, :2] if arr.ndim == 2 and arr.shape[1] >= 2 else None
-        except (TypeError, ValueError):
-            rec.detections_xy = None
+        # the prior once: the windows are placed from the one the solver tracks from
         prior = self.tracking_prior(exposure_s)
+        if detections is not None:
+            rec.detection = "given"
+        else:
+            if prior is not None and self._detect_tracking is not None \
+                    and isinstance(frame, np.ndarray):
+                try:
+                    detections = self._detect_tracking(frame, prior)
+                except (ValueError, TypeError) as e:
+                    rec.rejected.append(("camera", f"detection in windows failed: {e}; "
+                                                   "the whole frame is detected"))
+                if detections is not None:
+                    rec.detection = "windows"
+            if detections is None:
+                detect = self._detect
+                if detect is None:
+                    from adfusion import starid
+                    detect = starid.detect
+                try:
+                    detections = detect(frame, self.solver.camera)
+                except (ValueError, TypeError, FileNotFoundError) as e:
+                    rec.rejected.append(("camera", f"detection failed: {e}"))
+                    return
+                rec.detection = "frame"
+        rec.sensors.append("camera")
+        xy = getattr(detections, "xy", None)
+        if isinstance(xy, np.ndarray) and xy.dtype == np.float64 and xy.ndim == 2 \
+                and xy.shape[1] == 2:
+            rec.detections_xy = xy  # a Detections' own (N, 2) array: no conversion
+        else:
+            try:
+                arr = np.asarray(detections if xy is None else xy, dtype=np.float64)
+                rec.detections_xy = arr[:, :2] if arr.ndim == 2 and arr.shape[1] >= 2 \
+                    else None
+            except (TypeError, ValueError):
+                rec.detections_xy = None
         if prior is not None:
             rec.cone_deg = prior.k * prior.sigma_deg
         try:
@@ -502,8 +533,13 @@ class Estimator:
         """
         if self.filter is None or self.misses >= self.max_misses:
             return None
-        q_cam_icrs = rot.multiply(self.q_cam_body, self.filter.q_body_icrs)
-        sigma = max(self.filter.search_cone_deg(k=1.0), self.min_cone_deg)
+        f = self.filter
+        q_cam_icrs = rot.multiply(self.q_cam_body, f.q_body_icrs)
+        p = f.P
+        if math.degrees(math.sqrt(max(p[0, 0] + p[1, 1] + p[2, 2], 0.0))) <= self.min_cone_deg:
+            sigma = self.min_cone_deg  # λmax ≤ trace: the floor wins (no eigenvalues)
+        else:
+            sigma = max(f.search_cone_deg(k=1.0), self.min_cone_deg)
         sigma *= self.widen_per_miss ** self.misses
         return Prior(q_cam_icrs, sigma, smear_cam_rad=self._smear(exposure_s))
 
@@ -558,5 +594,5 @@ class Estimator:
         if self.filter is not None:
             rec.q_body_icrs = np.array(self.filter.q_body_icrs)
             rec.bias_rad_s = np.array(self.filter.bias_rad_s)
-            rec.sigma_rad = np.sqrt(np.diag(self.filter.P))
+            rec.sigma_rad = np.sqrt(self.filter.P.diagonal())
         return rec

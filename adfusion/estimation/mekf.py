@@ -217,20 +217,42 @@ def _unit_quat(q: ArrayLike, what: str) -> tuple[float, float, float, float] | s
 
 
 def _sym_pd_3x3(cov: ArrayLike, what: str) -> Array | str:
-    """A finite, symmetric, positive-definite 3×3 covariance, or the reason it is not one."""
+    """A finite, symmetric, positive-definite 3×3 covariance, or the reason it is not one.
+
+    In floats (it runs at every star fix): the tests of ``np.allclose(c, c.T, rtol=1e-9,
+    atol=1e-12·max|c|)`` and of a Cholesky factorisation of the lower triangle (LAPACK's
+    ``potrf`` fails exactly when a pivot is not > 0), element by element.
+
+    >>> _sym_pd_3x3([[1.0, 0.5, 0.0], [0.5, 1.0, 0.0], [0.0, 0.0, 1.0]], "c").tolist()
+    [[1.0, 0.5, 0.0], [0.5, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    >>> _sym_pd_3x3(np.diag([1.0, -1.0, 1.0]), "c"), _sym_pd_3x3(np.triu(np.ones((3, 3))), "c")
+    ('c is not positive definite', 'c is not symmetric')
+    """
     c = np.asarray(cov, dtype=np.float64)
     if c.shape != (3, 3):
         raise ValueError(f"{what} must have shape (3, 3), got {c.shape}")
-    if not np.all(np.isfinite(c)):
-        return f"{what} is not finite"
-    scale = float(np.max(np.abs(c)))
-    if not np.allclose(c, c.T, rtol=1e-9, atol=1e-12 * scale):
-        return f"{what} is not symmetric"
-    try:
-        np.linalg.cholesky(c)
-    except np.linalg.LinAlgError:
+    a = c.ravel().tolist()
+    for v in a:
+        if not math.isfinite(v):
+            return f"{what} is not finite"
+    atol = 1e-12 * max(abs(v) for v in a)
+    c00, c01, c02, c10, c11, c12, c20, c21, c22 = a
+    for u, v in ((c01, c10), (c02, c20), (c12, c21)):
+        if abs(u - v) > atol + 1e-9 * abs(v) or abs(v - u) > atol + 1e-9 * abs(u):
+            return f"{what} is not symmetric"
+    # Cholesky of the lower triangle, as np.linalg.cholesky reads it
+    if not c00 > 0.0:
         return f"{what} is not positive definite"
-    return 0.5 * (c + c.T)
+    l00 = math.sqrt(c00)
+    l10, l20 = c10 / l00, c20 / l00
+    d1 = c11 - l10 * l10
+    if not d1 > 0.0:
+        return f"{what} is not positive definite"
+    l21 = (c21 - l20 * l10) / math.sqrt(d1)
+    if not c22 - l20 * l20 - l21 * l21 > 0.0:
+        return f"{what} is not positive definite"
+    s01, s02, s12 = 0.5 * (c01 + c10), 0.5 * (c02 + c20), 0.5 * (c12 + c21)
+    return np.array([[c00, s01, s02], [s01, c11, s12], [s02, s12, c22]])
 
 
 def _sigma3(value: ArrayLike, what: str) -> Array:
@@ -614,26 +636,38 @@ class MEKF(AttitudeFilter):
     def _attitude_update(self, qm: tuple[float, ...], cov: Array) -> UpdateResult:
         w, x, y, z = self._q
         # residual δz = Log(q_meas ⊗ q̂⁻¹): the fix's error rotation in the body frame, H = [I 0]
-        y_vec = np.array(rot.log_map_floats(rot.hamilton(qm, (w, -x, -y, -z))))
+        y0, y1, y2 = rot.log_map_floats(rot.hamilton(qm, (w, -x, -y, -z)))
         p = self._P
-        s = p[:3, :3] + cov
-        try:
-            s_inv = np.linalg.inv(s)
-        except np.linalg.LinAlgError:
+        # S = P_θθ + R and its inverse in closed form (floats: this runs at every fix)
+        (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = p[:3, :3].tolist()
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = cov.tolist()
+        a, b, c = p00 + r00, p01 + r01, p02 + r02
+        d, e, f = p10 + r10, p11 + r11, p12 + r12
+        g, h, i = p20 + r20, p21 + r21, p22 + r22
+        c00, c01, c02 = e * i - f * h, f * g - d * i, d * h - e * g  # cofactors, first row
+        det = a * c00 + b * c01 + c * c02
+        if det == 0.0 or not math.isfinite(det):
             return UpdateResult(False, math.nan, 3, "innovation covariance is singular")
-        s_inv = 0.5 * (s_inv + s_inv.T)
-        nis = float(y_vec @ s_inv @ y_vec)
+        # S⁻¹ = adj(S) / det, symmetrised (as 0.5·(S⁻¹ + S⁻ᵀ) before)
+        i00, i11, i22 = c00 / det, (a * i - c * g) / det, (a * e - b * d) / det
+        i01 = 0.5 * (c01 + (c * h - b * i)) / det
+        i02 = 0.5 * (c02 + (b * f - c * e)) / det
+        i12 = 0.5 * ((b * g - a * h) + (c * d - a * f)) / det
+        nis = (y0 * (i00 * y0 + i01 * y1 + i02 * y2) + y1 * (i01 * y0 + i11 * y1 + i12 * y2)
+               + y2 * (i02 * y0 + i12 * y1 + i22 * y2))
         gated = self._gate(nis, 3)
         if gated is not None:
             return gated
-        k = p[:, :3] @ s_inv  # P Hᵀ is the first three columns of P
+        s_inv = np.array([[i00, i01, i02], [i01, i11, i12], [i02, i12, i22]])
+        k = p[:, :3].dot(s_inv)  # P Hᵀ is the first three columns of P
         ikh = _EYE6.copy()
         ikh[:, :3] -= k
-        new_p = ikh @ p @ ikh.T  # Joseph form
-        new_p += k @ cov @ k.T
-        dx = k @ y_vec
-        tr = p.item(0) + p.item(7) + p.item(14)
-        if float(dx[:3] @ dx[:3]) * tr > self._relin**2 * float(np.min(np.diag(cov))):
+        new_p = ikh.dot(p).dot(ikh.T)  # Joseph form
+        new_p += k.dot(cov).dot(k.T)
+        dx = k.dot(np.array([y0, y1, y2]))
+        d0, d1, d2 = dx[:3].tolist()
+        if (d0 * d0 + d1 * d1 + d2 * d2) * (p00 + p11 + p22) > self._relin**2 * min(r00, r11,
+                                                                                     r22):
             # H = I is exact in the prior's coordinates (Log(Exp(δθ)) = δθ), so no iteration;
             # only move the covariance to the new reference (see _iterated_vector_update)
             g = _EYE6.copy()
