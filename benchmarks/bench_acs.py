@@ -123,6 +123,10 @@ def _cost(run, frame_images) -> dict[str, Any]:
         cost["starid.detect_roi TrackingWindows.detect alone (same frames)"] = _us(tw_ts)
     cost["adfusion module alone, gyro-only UpdateState (hot loop, as Basilisk's below)"] = \
         _us(_gyro_loop_cost(run))
+    frame_loop = _frame_loop_cost(run)
+    if frame_loop:
+        cost["adfusion camera module alone, UpdateState with a tracked frame (loop over "
+             "pre-rendered frames, as Basilisk's below)"] = _us(frame_loop)
     cost.update({f"Basilisk {k}.UpdateState (from Python)": v
                  for k, v in _module_cost(run).items()})
     return cost
@@ -152,6 +156,35 @@ def _gyro_loop_cost(run, n: int = 2000) -> list[float]:
         write(imu, 0, k * 100_000_000)
         nav.UpdateState(k * 100_000_000)
     return nav.cost_s["gyro"]
+
+
+def _frame_loop_cost(run, n: int = 200) -> list[float]:
+    """The camera AdfusionNav's UpdateState with a frame and nothing else, called in a loop
+    after the run: ``n`` frames rendered beforehand at the module's own estimate (its
+    fixes then pass the filter's gate), one every 0.25 s after the run's end, gyro held.
+    The conditions of Basilisk's modules in :func:`_module_cost`: inside the run the call
+    follows the rendering, which evicts the caches it needs. Only tracked frames count."""
+    nav, cam = run.modules.get("adfusion"), run.modules.get("camera")
+    if nav is None or cam is None or nav.est.filter is None:
+        return []
+    q = nav.est.filter.q_body_icrs
+    t0_ns = round(nav.est.t * 1e9)
+    keepout, cam.earth_keepout_rad = cam.earth_keepout_rad, None  # truth: no position
+    frames = [cam.render(cam.frames + k, q, np.zeros(3), np.zeros(3),
+                         t_ns=t0_ns + (k + 1) * 250_000_000) for k in range(n)]
+    cam.earth_keepout_rad = keepout
+    keep, nav.keep_records = nav.keep_records, False  # the run's records stay as they are
+    start = len(nav.cost_s["frame"])
+    out = []
+    for fr in frames:
+        cam.latest = fr
+        misses = nav.est.misses
+        nav.UpdateState(fr.t_ns)
+        if misses < nav.est.max_misses:  # (a tracking prior: the frame was tracked)
+            out.append(nav.cost_s["frame"][-1])
+    del nav.cost_s["frame"][start:]
+    nav.keep_records = keep
+    return out
 
 
 def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s: float = 150.0,
@@ -216,8 +249,14 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
         "scenario": name, "seeds": m, "duration_s": duration_s, "settle_s": settle_s,
         "nees_band_95": [float(lo), float(hi)], "nees_dof": 3, "ensemble_nees": ensemble,
         "times": int(0 if t_grid is None else len(t_grid)),
+        # the criterion (pointing error ≤ 1.2 × the truth-fed loop's) is judged on the mean
+        # over the seeds; each seed's ratio is kept too
         "pointing_ratio_adfusion_truth": {"mean": float(np.mean(ratios)),
-                                          "max": float(np.max(ratios))},
+                                          "max": float(np.max(ratios)),
+                                          "per_seed": [float(r) for r in ratios],
+                                          "seeds_above_1_2": int(np.sum(np.asarray(ratios)
+                                                                        > 1.2)),
+                                          "judged": "mean"},
         "pointing_ratio_adfusion_st_truth": {"mean": float(np.mean(ratios_st)),
                                              "max": float(np.max(ratios_st))},
         "pointing_rms_arcsec_mean": {k: float(np.mean([s["pointing"][k]["rms_arcsec"]

@@ -217,7 +217,8 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
     val = np.empty((side, side), np.float32)
     border = np.empty(nb, np.float32)
     lab = np.zeros((side, side), np.int64)
-    stack = np.empty(side * side, np.int64)
+    stack_y = np.empty(side * side, np.int64)
+    stack_x = np.empty(side * side, np.int64)
     ring = np.zeros((side, side), np.bool_)
     wcol = np.empty(side, np.float32)
     wrow = np.empty(side, np.float32)
@@ -281,18 +282,16 @@ def window_centroids(img, pred, half, sigma, floor, min_area, edge_px, max_elong
                             continue
                         n_lab += 1
                         lab[y, x] = n_lab
-                        top = 0
-                        stack[top] = y * side + x
-                        top = 1
+                        stack_y[0], stack_x[0] = y, x  # (rows and columns apart:
+                        top = 1  # no division per pixel)
                         while top:
                             top -= 1
-                            p = stack[top]
-                            py, px = p // side, p % side
+                            py, px = stack_y[top], stack_x[top]
                             for yy in range(max(py - 1, 0), min(py + 2, side)):
                                 for xx in range(max(px - 1, 0), min(px + 2, side)):
                                     if lab[yy, xx] == -1:
                                         lab[yy, xx] = n_lab
-                                        stack[top] = yy * side + xx
+                                        stack_y[top], stack_x[top] = yy, xx
                                         top += 1
         # per blob, in raster order: area, flux (float64, sequential), peak (the last pixel
         # at the maximum), clipped (touches a window edge that is not the frame's)
