@@ -466,6 +466,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         c_half = min(half_rad + _CONE_SPARE_RAD, math.pi)
         idx = np.array(self._tree.query_ball_point(axis, 2 * math.sin(c_half / 2)),
                        dtype=np.int64)
+        idx.sort()  # (a single point's query is not sorted by the tree)
         vec = self.vectors[idx]
         self._cone_cache = (np.array(axis, dtype=np.float64), c_half, idx, vec)
         return idx, vec

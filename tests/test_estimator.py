@@ -133,3 +133,53 @@ def test_step_gyro_is_step_without_the_record(scenario):
                b.step_gyro(times[-1] + 0.2, [0.0, 0.0, 0.0, 0.0])]
     assert reasons[0][0] == "gyro" and "gyro_max_rate_rad_s" in reasons[0][1]
     assert reasons[1] == ("gyro", "not a finite 3-vector: [0.0, 0.0, 0.0, 0.0]")
+
+
+def test_tracking_frames_detected_around_the_prior_the_solver_tracks_from() -> None:
+    # detect_tracking gets the one prior of the frame — the filter propagated to the
+    # frame's time, as the solver then uses it — and the record says how stars were found
+    import copy
+
+    from adfusion.sensors.render import SensorModel, render_frame
+    from adfusion.starid.detect_roi import TrackingWindows
+
+    cat = starid.Catalog.hipparcos(mag_limit=6.0)
+    cam = starid.Camera.pinhole(512, 512, 20.0)
+    solver = starid.Solver(cat, cam, centroid_sigma_px=0.05)
+    windows = TrackingWindows(solver)
+    q0 = rot.q_cam_icrs_from_radec_roll(1.0, 0.5, 0.2)
+    w = np.array([0.0, 2e-3, 0.0])  # rad/s: 0.1 s of it moves the stars 2.9 px
+    seen = []
+
+    def spy(image, prior):
+        seen.append(prior)
+        return mode[0](image, prior)
+
+    def refuse(image, prior):
+        raise ValueError("bad window")
+
+    mode = [windows.detect]
+    est = Estimator(solver, q_body_icrs0=q0, sigma_attitude0_rad=1e-5, exposure_s=0.05,
+                    detect_tracking=spy)
+    est.step(0.0, gyro=w)
+    for k, (how, want) in enumerate([(windows.detect, "windows"),
+                                     (lambda image, prior: None, "frame"),
+                                     (refuse, "frame")]):
+        t = 0.1 * (k + 1)
+        q_t = rot.multiply(rot.exp_map(-w * t), q0)  # the true camera attitude at t
+        img = render_frame(cam, q_t, cat.vectors, cat.mag,
+                           SensorModel(psf_sigma_px=1.2, noise="gaussian"), seed=k).image
+        expected = copy.deepcopy(est)
+        expected.step(t)  # propagated to the frame's time, no frame
+        want_prior = expected.tracking_prior(0.05)
+        mode[0] = how
+        rec = est.step(t, frame=img)
+        assert len(seen) == k + 1
+        assert np.array_equal(seen[-1].q_cam_icrs, want_prior.q_cam_icrs)
+        assert rec.cone_deg == seen[-1].k * seen[-1].sigma_deg
+        assert rec.detection == want and rec.star_mode == "tracking" and rec.fix_accepted
+        assert rot.angle_between(rec.solution.q_cam_icrs, q_t) < np.radians(30 / 3600)
+        if k == 2:
+            assert any("windows failed: bad window" in why for _, why in rec.rejected)
+    rec = est.step(0.4, detections=rec.detections_xy)
+    assert rec.detection == "given" and len(seen) == 3

@@ -507,3 +507,65 @@ def check_camera_mounting(make: Factory) -> None:
 
 def test_camera_mounting_equivalent_to_body_fix() -> None:
     check_camera_mounting(MEKF)
+
+
+def test_attitude_update_equals_the_textbook_kalman_update() -> None:
+    # the closed-form S⁻¹ and the float checks against a Kalman update written with
+    # numpy's inverse: H = [I 0], K = P Hᵀ S⁻¹, Joseph form, residual Log(q_meas ⊗ q̂⁻¹)
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        f = MEKF(rot.exp_map(rng.normal(0, 0.3, 3)), rng.uniform(1e-6, 1e-3, 3),
+                 rng.uniform(1e-8, 1e-5, 3), 5e-6, 1e-8)
+        for _ in range(3):
+            f.propagate(0.1, rng.normal(0, 1e-3, 3))
+        a = rng.normal(size=(3, 3)) * rng.uniform(1e-6, 1e-4)
+        cov = a @ a.T + 1e-12 * np.eye(3)
+        nu = np.linalg.cholesky(cov) @ rng.normal(size=3)  # a fix with that covariance
+        q_meas = rot.multiply(rot.exp_map(nu), f.q_body_icrs)
+        p, q0, b0 = f.P, f.q_body_icrs, f.bias_rad_s
+        y = rot.log_map(rot.multiply(q_meas, rot.inverse(q0)))
+        s = p[:3, :3] + cov
+        nis = float(y @ np.linalg.inv(s) @ y)
+        k = p[:, :3] @ np.linalg.inv(s)
+        ikh = np.eye(6)
+        ikh[:, :3] -= k
+        p_new = ikh @ p @ ikh.T + k @ cov @ k.T
+        dx = k @ y
+        res = f.update_attitude(q_meas, cov)
+        assert res.accepted and math.isclose(res.nis, nis, rel_tol=1e-9)
+        assert np.allclose(f.bias_rad_s, b0 + dx[3:], rtol=1e-9, atol=1e-18)
+        assert rot.angle_between(f.q_body_icrs, rot.multiply(rot.exp_map(dx[:3]), q0)) < 1e-12
+        if float(dx[:3] @ dx[:3]) * np.trace(p[:3, :3]) <= 0.01 * np.min(np.diag(cov)):
+            assert np.allclose(f.P, p_new, rtol=1e-9, atol=1e-30)  # (no reset Jacobian)
+
+
+def test_covariance_checks_agree_with_numpy() -> None:
+    # an update's covariance checks (in floats) give numpy's verdicts: np.allclose for
+    # symmetry, np.linalg.cholesky for positive definiteness
+    rng = np.random.default_rng(5)
+    cases = [np.diag([1.0, 1.0, -1e-30]), np.diag([1e-20, 1e-20, 1e-20]), np.zeros((3, 3)),
+             np.full((3, 3), np.nan), np.diag([np.inf, 1.0, 1.0]),
+             np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]])]
+    for _ in range(300):
+        a = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-8, 0)
+        c = a @ a.T if rng.random() < 0.5 else a + a.T
+        if rng.random() < 0.3:
+            c[0, 1] *= 1 + 10.0 ** rng.uniform(-12, -6)  # just (a)symmetric
+        cases.append(c)
+    verdicts = set()
+    for c in cases:
+        if not np.all(np.isfinite(c)):
+            want = "cov_rad2 is not finite"
+        elif not np.allclose(c, c.T, rtol=1e-9, atol=1e-12 * np.max(np.abs(c))):
+            want = "cov_rad2 is not symmetric"
+        else:
+            try:
+                np.linalg.cholesky(c)
+                want = ""
+            except np.linalg.LinAlgError:
+                want = "cov_rad2 is not positive definite"
+        f = MEKF([1.0, 0.0, 0.0, 0.0], 1e-3, 1e-6, 5e-6, 1e-8)
+        res = f.update_attitude(f.q_body_icrs, c)  # a zero residual: only the checks decide
+        assert res.reason == want and res.accepted == (want == ""), c
+        verdicts.add(want)
+    assert len(verdicts) == 4

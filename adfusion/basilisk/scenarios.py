@@ -124,6 +124,8 @@ class AcsConfig:
     slew_deg: float = 20.0
     initial_error_deg: float = 0.1
     rate_lowpass_hz: float | None = None  # on adfusion's output rate (AdfusionNav)
+    # the adfusion filters' gyro-bias random walk (Estimator rrw_rad_s_sqrt_s)
+    filter_rrw_rad_s_sqrt_s: float = 1e-8
     # tracking frames detected in windows around the predicted stars (AdfusionNav.windows)
     windows: bool = True
     # the solver's a-priori 1-σ centroid error (Solver.centroid_sigma_px): a fix's covariance
@@ -482,7 +484,7 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     veh_msg = messaging.VehicleConfigMsg().write(veh)
     bias_sigma0 = max(float(np.max(np.abs(cfg.gyro_bias_rad_s))) * 2.0, 1e-4)
     # fix_covariance_scale and the solver's centroid_sigma_px: see AcsConfig
-    est_kw = {"arw_rad_sqrt_s": cfg.arw_rad_sqrt_s, "rrw_rad_s_sqrt_s": 1e-8,
+    est_kw = {"arw_rad_sqrt_s": cfg.arw_rad_sqrt_s, "rrw_rad_s_sqrt_s": cfg.filter_rrw_rad_s_sqrt_s,
               "sigma_bias0_rad_s": bias_sigma0, "exposure_s": cfg.exposure_s}
     navs: dict[str, AdfusionNav] = {}
     if use_camera:
