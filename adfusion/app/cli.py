@@ -307,7 +307,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--mag-limit", type=magnitude_limit, default=None,
                    help="catalogue limit, V (default: the log's, else 6.5, as solve)")
     g.add_argument("--epoch", type=float, help="catalogue epoch, Julian year (default: the "
-                   "log's, else 2000)")
+                   "log's, else its start time's, else 2000)")
     g = rp.add_argument_group("filter and output")
     g.add_argument("--no-gyro", action="store_true", help="ignore the gyro (video only: the "
                    "filter estimates the rate)")
