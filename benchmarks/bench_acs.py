@@ -104,6 +104,14 @@ def _cost(run, frame_images) -> dict[str, Any]:
     if len(frame_calls) == len(steps):
         tracking = [c for c, m in zip(frame_calls, modes, strict=True) if m == "tracking"]
         cost["adfusion camera module, UpdateState with a frame in tracking"] = _us(tracking)
+        # every other frame (t = 0.5 s, 1 s, ...) comes with a gyro and a magnetometer
+        # sample in the same call: the frame's own cost is that of the calls with it alone
+        events = run.modules["adfusion"].frame_call_events
+        alone = [c for c, m, n in zip(frame_calls, modes, events, strict=True)
+                 if m == "tracking" and n == 1]
+        if alone:
+            cost["adfusion camera module, UpdateState with a frame in tracking and nothing "
+                 "else"] = _us(alone)
     cam = run.camera
     ts, tw_ts = [], []
     windows = run.modules["adfusion"].windows

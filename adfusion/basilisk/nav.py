@@ -30,7 +30,9 @@ Every camera frame's and star-tracker sample's :class:`adfusion.StepRecord` is k
 ``records`` (with the frame's truth, without its image, and the covariance after the step)
 when ``keep_records``; ``cost_s`` keeps each call's CPU time (``time.thread_time``: on a
 shared machine the wall time mostly measures the wait for a core) by kind for benchmarks
-(never written to logs: a log must be identical for a seed).
+(a call with a frame is a ``"frame"`` call, whatever else it took: ``frame_call_events``
+says how many inputs each had), never written to logs (a log must be identical for a
+seed).
 
 Example (a gyro-only module in a bare Basilisk simulation, IMU messages written by hand):
     >>> from Basilisk.architecture import messaging
@@ -145,6 +147,9 @@ class AdfusionNav(sysModel.SysModel):
         self.gyro_rejected: list[tuple[float, str, str]] = []  # (t, input, why)
         self.cost_s: dict[str, list[float]] = {"gyro": [], "frame": [], "st": [], "mag": [],
                                                "idle": []}
+        # per "frame" call: how many inputs it took (the frame alone, or with a gyro or
+        # magnetometer sample of the same time)
+        self.frame_call_events: list[int] = []
         self._att = self._filt = None
         self._rate_lp: list[float] | None = None
         self._q_body_case: np.ndarray | None = None
@@ -211,6 +216,8 @@ class AdfusionNav(sysModel.SysModel):
             kinds = {e[2] for e in events}
             kind = "frame" if "frame" in kinds else "st" if "st" in kinds else "mag"
         self.cost_s[kind].append(time.thread_time() - t0)
+        if kind == "frame":
+            self.frame_call_events.append(len(events))
 
     def _bind(self) -> None:
         """The linked inputs, the output writers and the payload setters, once after
