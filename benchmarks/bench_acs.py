@@ -19,7 +19,10 @@ camera frame — detection, identification, filter), the frame's detection alone
 frame, and the tracking windows), and — in the same process on the run's live messages — the
 ``UpdateState`` of Basilisk's own modules (``inertialUKF``, ``mrpFeedback``,
 ``attTrackingError``, ``imuSensor``, ``starTracker``, ``simpleNav``, ``rwMotorTorque``) called
-from Python in a loop (their messages stale: ``inertialUKF`` takes its gyro-propagation branch).
+from Python in a loop (their messages stale: ``inertialUKF`` takes its gyro-propagation branch),
+and the adfusion module's gyro-only and tracked-frame calls in loops the same way. Each loop
+runs :data:`ROUNDS` rounds; the round with the lowest median is reported, with every round's
+median.
 
 Usage (from the repository root; one process, 10 seeds of leo in ~6 min on a 2-core VM)::
 
@@ -64,19 +67,36 @@ def _us(x) -> dict[str, float]:
             "p95_us": float(np.percentile(a, 95))}
 
 
+# the loops below run this many rounds and report the round with the lowest median (each
+# round's median is kept): on the shared machine a round can fall on a burst of other jobs
+ROUNDS = 3
+
+
+def _best(rounds: list[list[float]]) -> dict[str, Any]:
+    """:func:`_us` of the round with the lowest median, and every round's median."""
+    stats = [_us(r) for r in rounds if len(r)]
+    best = min(stats, key=lambda d: d["median_us"])
+    return {**best, "rounds": len(stats),
+            "round_medians_us": [d["median_us"] for d in stats]}
+
+
 def _module_cost(run, n: int = 2000) -> dict[str, dict[str, float]]:
-    """Basilisk modules' UpdateState, called ``n`` times on the run's live messages."""
+    """Basilisk modules' UpdateState, called ``n`` times a round on the run's live
+    messages."""
     out = {}
     t_end = round(run.t[-1] * 1e9)
     for name in BASILISK_MODULES:
         mod = run.modules[name]
-        ts = []
-        for k in range(1, n + 1):
-            t_ns = t_end + k * 50_000_000
-            t0 = time.thread_time()
-            mod.UpdateState(t_ns)
-            ts.append(time.thread_time() - t0)
-        out[name] = _us(ts)
+        rounds = []
+        for r in range(ROUNDS):
+            ts = []
+            for k in range(r * n + 1, (r + 1) * n + 1):
+                t_ns = t_end + k * 50_000_000
+                t0 = time.thread_time()
+                mod.UpdateState(t_ns)
+                ts.append(time.thread_time() - t0)
+            rounds.append(ts)
+        out[name] = _best(rounds)
     return out
 
 
@@ -130,17 +150,17 @@ def _cost(run, frame_images) -> dict[str, Any]:
     if tw_ts:
         cost["starid.detect_roi TrackingWindows.detect alone (same frames)"] = _us(tw_ts)
     cost["adfusion module alone, gyro-only UpdateState (hot loop, as Basilisk's below)"] = \
-        _us(_gyro_loop_cost(run))
+        _best(_gyro_loop_cost(run))
     frame_loop = _frame_loop_cost(run)
-    if frame_loop:
+    if any(frame_loop):
         cost["adfusion camera module alone, UpdateState with a tracked frame (loop over "
-             "pre-rendered frames, as Basilisk's below)"] = _us(frame_loop)
+             "pre-rendered frames, as Basilisk's below)"] = _best(frame_loop)
     cost.update({f"Basilisk {k}.UpdateState (from Python)": v
                  for k, v in _module_cost(run).items()})
     return cost
 
 
-def _gyro_loop_cost(run, n: int = 2000) -> list[float]:
+def _gyro_loop_cost(run, n: int = 2000) -> list[list[float]]:
     """A star-tracker AdfusionNav's gyro-only UpdateState called in a loop, each call on a
     new IMU sample (the run's gyro rates): the same conditions as Basilisk's modules in
     :func:`_module_cost` (inside the run the call follows rendering and frame work, and
@@ -159,19 +179,24 @@ def _gyro_loop_cost(run, n: int = 2000) -> list[float]:
     imu = messaging.IMUSensorMsgPayload()
     rates = np.asarray(run.gyro["omega"])
     nav.Reset(0)
-    for k in range(1, n + 1):
+    for k in range(1, ROUNDS * n + 1):
         imu.AngVelPlatform = rates[k % len(rates)].tolist()
         write(imu, 0, k * 100_000_000)
         nav.UpdateState(k * 100_000_000)
-    return nav.cost_s["gyro"]
+    ts = nav.cost_s["gyro"]
+    return [ts[r * n:(r + 1) * n] for r in range(ROUNDS)]
 
 
-def _frame_loop_cost(run, n: int = 200) -> list[float]:
+def _frame_loop_cost(run, n: int = 200) -> list[list[float]]:
     """The camera AdfusionNav's UpdateState with a frame and nothing else, called in a loop
     after the run: ``n`` frames rendered beforehand at the module's own estimate (its
-    fixes then pass the filter's gate), one every 0.25 s after the run's end, gyro held.
-    The conditions of Basilisk's modules in :func:`_module_cost`: inside the run the call
-    follows the rendering, which evicts the caches it needs. Only tracked frames count."""
+    fixes then pass the filter's gate), one every 0.25 s after the run's end, gyro held;
+    the same images again in the later rounds, as new frames (100 MB of them: cold in
+    cache every time). The conditions of Basilisk's modules in :func:`_module_cost`:
+    inside the run the call follows the rendering, which evicts the caches it needs. Only
+    tracked frames count."""
+    from dataclasses import replace
+
     nav, cam = run.modules.get("adfusion"), run.modules.get("camera")
     if nav is None or cam is None or nav.est.filter is None:
         return []
@@ -183,16 +208,21 @@ def _frame_loop_cost(run, n: int = 200) -> list[float]:
     cam.earth_keepout_rad = keepout
     keep, nav.keep_records = nav.keep_records, False  # the run's records stay as they are
     start = len(nav.cost_s["frame"])
-    out = []
-    for fr in frames:
-        cam.latest = fr
-        misses = nav.est.misses
-        nav.UpdateState(fr.t_ns)
-        if misses < nav.est.max_misses:  # (a tracking prior: the frame was tracked)
-            out.append(nav.cost_s["frame"][-1])
+    rounds = []
+    for r in range(ROUNDS):
+        out = []
+        for fr0 in frames:
+            fr = replace(fr0, index=fr0.index + r * n, t_ns=fr0.t_ns + r * n * 250_000_000)
+            cam.latest = fr
+            misses = nav.est.misses
+            nav.UpdateState(fr.t_ns)
+            if misses < nav.est.max_misses:  # (a tracking prior: the frame was tracked)
+                out.append(nav.cost_s["frame"][-1])
+        rounds.append(out)
     del nav.cost_s["frame"][start:]
+    del nav.frame_call_events[start:]
     nav.keep_records = keep
-    return out
+    return rounds
 
 
 def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s: float = 150.0,
