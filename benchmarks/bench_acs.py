@@ -30,7 +30,7 @@ Usage (from the repository root; one process, 10 seeds of leo in ~6 min on a 2-c
                                    [--out benchmarks/results/bench_acs.json]
 
 Example:
-    >>> r = run("leo", seeds=2, duration_s=4.0, settle_s=1.0, cost_seed=None)
+    >>> r = run("leo", seeds=2, duration_s=4.0, settle_s=1.0, cost_seed=None, verbose=False)
     >>> len(r["per_seed"]), r["per_seed"][0]["camera"]["wrong"]
     (2, 0)
 """
@@ -226,7 +226,7 @@ def _frame_loop_cost(run, n: int = 200) -> list[list[float]]:
 
 
 def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s: float = 150.0,
-        cost_seed: int | None = 0) -> dict[str, Any]:
+        cost_seed: int | None = 0, verbose: bool = True) -> dict[str, Any]:
     cfg = scenario(name, duration_s=duration_s)
     sky, cat, solver = sky_and_solver(cfg)
     per_seed, ens, cost = [], {k: [] for k in ESTIMATORS}, None
@@ -262,14 +262,16 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
                                     "all_four": time.perf_counter() - t0},
                          "cpu_s": {"adfusion_loop": cpu_adf,
                                    "all_four": time.process_time() - c0}})
-        print(f"seed {seed}: pointing RMS truth {rep.pointing['truth']['rms_arcsec']:.2f}″, "
-              f"ukf {rep.pointing['ukf']['rms_arcsec']:.2f}″, adfusion "
-              f"{rep.pointing['adfusion']['rms_arcsec']:.2f}″ (×{ratio:.2f}), adfusion_st "
-              f"{rep.pointing['adfusion_st']['rms_arcsec']:.2f}″ (×{ratio_st:.2f}); estimation RMS "
-              + ", ".join(f"{k} {rep.estimation[k]['rms_arcsec']:.2f}″ NEES "
-                          f"{rep.estimation[k]['mean_nees']:.2f}" for k in ESTIMATORS)
-              + f"; camera {rep.camera['identified_3_stars']}/{rep.camera['frames_3_stars']} "
-              f"wrong {rep.camera['wrong']}; {time.perf_counter() - t0:.1f} s", flush=True)
+        if verbose:
+            print(f"seed {seed}: pointing RMS truth {rep.pointing['truth']['rms_arcsec']:.2f}″, "
+                  f"ukf {rep.pointing['ukf']['rms_arcsec']:.2f}″, adfusion "
+                  f"{rep.pointing['adfusion']['rms_arcsec']:.2f}″ (×{ratio:.2f}), adfusion_st "
+                  f"{rep.pointing['adfusion_st']['rms_arcsec']:.2f}″ (×{ratio_st:.2f}); "
+                  "estimation RMS "
+                  + ", ".join(f"{k} {rep.estimation[k]['rms_arcsec']:.2f}″ NEES "
+                              f"{rep.estimation[k]['mean_nees']:.2f}" for k in ESTIMATORS)
+                  + f"; camera {rep.camera['identified_3_stars']}/{rep.camera['frames_3_stars']} "
+                  f"wrong {rep.camera['wrong']}; {time.perf_counter() - t0:.1f} s", flush=True)
         if keep:
             cost = _cost(base, _frames_again(base, 200))
     m = len(per_seed)
