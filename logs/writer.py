@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import struct
 from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import Any, Literal
@@ -42,6 +43,7 @@ from adfusion.logs import topics
 from adfusion.logs.jsonio import dumps, encode_metadata
 from adfusion.logs.schemas import GENERIC, JSON_SCHEMAS
 from google.protobuf.message import Message as ProtoMessage
+from mcap.records import MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
@@ -55,6 +57,69 @@ TF_TOPIC = topics.TF
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, None: CompressionType.NONE}
+
+
+# A Message record's header (opcode 0x05, record length, channel id, sequence, log time,
+# publish time) in one pack: what mcap's Message.write writes in six.
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+
+
+class _MessageAppender:
+    """``mcap.Writer.add_message`` for a chunked writer, writing the same bytes and index
+    entries with one ``struct`` pack and no record object per message: the replay writes
+    ~25 messages a frame, and the library's path (a dataclass, six packs, seeks to patch
+    the length) cost ~15 µs each. ``add_parts`` appends a message given in pieces (a frame
+    is header, pixels, trailer) straight from the caller's buffers, without first joining
+    them into one ``bytes``.
+
+    It uses the writer's private chunk builder and statistics; :meth:`of` returns ``None``
+    (use ``Writer.add_message``) when they are not as this was written against (mcap 1.6),
+    and tests/test_logs.py compares its files byte for byte with the library's own.
+    """
+
+    def __init__(self, writer: Writer) -> None:
+        self._stats = writer._Writer__statistics
+        self._chunk = writer._Writer__chunk_builder
+        self._maybe_finalize = writer._Writer__maybe_finalize_chunk
+        self._index = MessageIndex
+
+    @classmethod
+    def of(cls, writer: Writer) -> _MessageAppender | None:
+        try:
+            appender = cls(writer)
+            chunk = appender._chunk
+            ok = (chunk is not None and hasattr(chunk.record_writer, "_buffer")
+                  and isinstance(chunk.message_indices, dict)
+                  and hasattr(chunk, "num_messages") and hasattr(chunk, "message_start_time")
+                  and hasattr(appender._stats, "channel_message_counts"))
+        except AttributeError:
+            return None
+        return appender if ok else None
+
+    def add_parts(self, channel_id: int, log_time: int, sequence: int,
+                  parts: tuple, size: int) -> None:
+        stats, chunk = self._stats, self._chunk
+        if stats.message_count == 0 or log_time < stats.message_start_time:
+            stats.message_start_time = log_time
+        if log_time > stats.message_end_time:
+            stats.message_end_time = log_time
+        stats.channel_message_counts[channel_id] += 1
+        stats.message_count += 1
+        if chunk.num_messages == 0 or log_time < chunk.message_start_time:
+            chunk.message_start_time = log_time
+        if log_time > chunk.message_end_time:
+            chunk.message_end_time = log_time
+        buf = chunk.record_writer._buffer
+        index = chunk.message_indices.get(channel_id)
+        if not index:
+            index = chunk.message_indices[channel_id] = self._index(channel_id=channel_id,
+                                                                    records=[])
+        index.records.append((log_time, buf.tell()))
+        chunk.num_messages += 1
+        buf.write(_MESSAGE_HEAD.pack(5, 22 + size, channel_id, sequence, log_time, log_time))
+        for part in parts:
+            buf.write(part)
+        self._maybe_finalize()
 
 
 def utc_ns(when: Any) -> int:
@@ -177,6 +242,7 @@ class LogWriter:
             index_types=IndexType.ALL,
         )
         self._writer.start(profile="", library="adfusion logs")
+        self._appender = _MessageAppender.of(self._writer)
         self._digests: dict[str, str] = {}  # record name → sha256 (see digest_metadata)
         if start_utc is not None:
             clock = encode_metadata({"start_utc": utc_iso(start_utc),
@@ -273,11 +339,23 @@ class LogWriter:
         self._channels[topic] = (channel_id, kind)
         return channel_id
 
-    def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
+    def _add(self, channel_id: int, t_ns: int, data: bytes, *parts: Any) -> None:
+        """One message: ``data`` (with ``parts``, buffers that follow it in the message)."""
         if self._closed:
             raise ValueError("write to a closed LogWriter")
-        self._writer.add_message(channel_id=channel_id, log_time=t_ns, data=data,
-                                 publish_time=t_ns, sequence=self.message_count)
+        if self._appender is not None:
+            if parts:
+                pieces = (data, *parts)
+                self._appender.add_parts(channel_id, t_ns, self.message_count, pieces,
+                                         sum(len(p) for p in pieces))
+            else:
+                self._appender.add_parts(channel_id, t_ns, self.message_count, (data,),
+                                         len(data))
+        else:
+            if parts:
+                data = b"".join((data, *parts))
+            self._writer.add_message(channel_id=channel_id, log_time=t_ns, data=data,
+                                     publish_time=t_ns, sequence=self.message_count)
         self.message_count += 1
 
     def _write_proto(self, topic: str, t_ns: int, msg: ProtoMessage) -> None:
@@ -301,8 +379,9 @@ class LogWriter:
         t_ns = self._ns(t_s)
         if png:
             self._write_proto(topic, t_ns, fg.encode_png_image(t_ns, image, frame_id))
-        else:
-            self._write_proto(topic, t_ns, fg.encode_raw_image(t_ns, image, frame_id))
+        else:  # the pixels go from the array into the chunk, not through two copies first
+            self._add(self._channel(topic, "foxglove.RawImage"), t_ns,
+                      *fg.encode_raw_image_parts(t_ns, image, frame_id))
 
     def write_annotations(self, t_s: float, detections_xy: ArrayLike | None = None,
                           identified: Iterable[tuple[float, float, Any]] = (),
