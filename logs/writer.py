@@ -40,7 +40,7 @@ from typing import Any, Literal
 import numpy as np
 from adfusion.logs import foxglove as fg
 from adfusion.logs import topics
-from adfusion.logs.jsonio import dumps, encode_metadata
+from adfusion.logs.jsonio import dumps, dumps_bytes, encode_metadata
 from adfusion.logs.schemas import GENERIC, JSON_SCHEMAS
 from google.protobuf.message import Message as ProtoMessage
 from mcap.records import MessageIndex
@@ -446,7 +446,7 @@ class LogWriter:
     def write_json(self, topic: str, t_s: float, payload: Mapping[str, Any]) -> None:
         """One JSON message (numpy values become lists, NaN/inf become ``null``). Topics of
         :data:`logs.schemas.JSON_SCHEMAS` carry their schema; others a generic object one."""
-        self._add(self._channel(topic, "json"), self._ns(t_s), dumps(payload).encode())
+        self._add(self._channel(topic, "json"), self._ns(t_s), dumps_bytes(payload))
 
     def write_json_bytes(self, topic: str, t_s: float, data: bytes) -> None:
         """One JSON message already encoded (``Message.raw`` of an input being copied)."""
