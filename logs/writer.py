@@ -33,6 +33,7 @@ import hashlib
 import json
 import os
 import struct
+import zlib
 from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import Any, Literal
@@ -43,7 +44,7 @@ from adfusion.logs import topics
 from adfusion.logs.jsonio import dumps, dumps_bytes, encode_metadata
 from adfusion.logs.schemas import GENERIC, JSON_SCHEMAS
 from google.protobuf.message import Message as ProtoMessage
-from mcap.records import MessageIndex
+from mcap.records import ChunkIndex, MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
@@ -62,6 +63,10 @@ _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
 # A Message record's header (opcode 0x05, record length, channel id, sequence, log time,
 # publish time) in one pack: what mcap's Message.write writes in six.
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+# A Chunk record's header up to its compression name (opcode 0x06, record length, message
+# start and end times, uncompressed size and CRC, the name's length), and a u64 length.
+_CHUNK_HEAD = struct.Struct("<BQQQQII")
+_LENGTH = struct.Struct("<Q")
 
 
 class _MessageAppender:
@@ -82,6 +87,7 @@ class _MessageAppender:
         self._chunk = writer._Writer__chunk_builder
         self._maybe_finalize = writer._Writer__maybe_finalize_chunk
         self._index = MessageIndex
+        self._writer = writer
 
     @classmethod
     def of(cls, writer: Writer) -> _MessageAppender | None:
@@ -91,10 +97,65 @@ class _MessageAppender:
             ok = (chunk is not None and hasattr(chunk.record_writer, "_buffer")
                   and isinstance(chunk.message_indices, dict)
                   and hasattr(chunk, "num_messages") and hasattr(chunk, "message_start_time")
-                  and hasattr(appender._stats, "channel_message_counts"))
+                  and hasattr(appender._stats, "channel_message_counts")
+                  and writer._Writer__enable_data_crcs is False
+                  and isinstance(writer._Writer__chunk_indices, list)
+                  and callable(writer._Writer__flush)
+                  and callable(getattr(Writer, "_Writer__finalize_chunk", None)))
         except AttributeError:
             return None
-        return appender if ok else None
+        if not ok:
+            return None
+        # name-mangled calls inside Writer (self.__finalize_chunk()) find the instance's
+        # attribute first: the writer's chunks end through finalize_chunk from now on
+        writer._Writer__finalize_chunk = appender.finalize_chunk
+        return appender
+
+    def finalize_chunk(self) -> None:
+        """``Writer.__finalize_chunk`` without copying the chunk's data into a record buffer
+        first: the Chunk record's header, then the (compressed) data, go to the file as
+        they are — a replay writes ~250 kB a frame, and the library copied it twice more."""
+        w, chunk = self._writer, self._chunk
+        if chunk.num_messages == 0:
+            return
+        self._stats.chunk_count += 1
+        data = chunk.end()
+        method = w._Writer__compression
+        if method == CompressionType.LZ4:
+            import lz4.frame
+
+            compression, stored = "lz4", lz4.frame.compress(data)  # as the library calls them
+        elif method == CompressionType.ZSTD:
+            import zstandard
+
+            compression, stored = "zstd", zstandard.compress(data)
+        else:
+            compression, stored = "", data
+        crc = zlib.crc32(data) if w._Writer__enable_crcs else 0
+        name = compression.encode()
+        body = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(stored)
+        head = (_CHUNK_HEAD.pack(0x06, body, chunk.message_start_time, chunk.message_end_time,
+                                 len(data), crc, len(name)) + name
+                + _LENGTH.pack(len(stored)))
+        flush, stream, records = w._Writer__flush, w._Writer__stream, w._Writer__record_builder
+        flush()
+        start = stream.tell()
+        stream.write(head)
+        stream.write(stored)
+        index = ChunkIndex(message_start_time=chunk.message_start_time,
+                           message_end_time=chunk.message_end_time, chunk_start_offset=start,
+                           chunk_length=len(head) + len(stored), message_index_offsets={},
+                           message_index_length=0, compression=compression,
+                           compressed_size=len(stored), uncompressed_size=len(data))
+        message_index_start = stream.tell()
+        if w._Writer__index_types & IndexType.MESSAGE:
+            for channel_id, message_index in chunk.message_indices.items():
+                index.message_index_offsets[channel_id] = message_index_start + records.count
+                message_index.write(records)
+        index.message_index_length = records.count
+        flush()
+        w._Writer__chunk_indices.append(index)
+        chunk.reset()
 
     def add_parts(self, channel_id: int, log_time: int, sequence: int,
                   parts: tuple, size: int) -> None:

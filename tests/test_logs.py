@@ -638,33 +638,43 @@ def test_json_dumps_equals_the_converted_copy():
         dumps({"o": object()})
 
 
-def test_messages_are_written_as_the_mcap_library_writes_them(tmp_path, monkeypatch):
+def _mixed_log(path: Path, compression: str) -> None:
+    with LogWriter(path, chunk_size=3000, compression=compression) as log:
+        for t in (2.0, 0.5, 3.0, 0.1, 0.1):  # times out of order: chunk and file time bounds
+            log.write_json("/imu/gyro", t, {"omega": [t, 0.0, 0.0]})
+            log.write_image(t, _frame(int(10 * t)))
+            log.write_annotations(t, [[1.0, 2.0]], [(1.0, 2.0, "HIP 7")])
+        log.flush()  # a chunk ended by hand, then an empty one
+        log.flush()
+        log.write_image(4.0, _frame(4, np.uint16))
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_messages_are_written_as_the_mcap_library_writes_them(tmp_path, monkeypatch,
+                                                              compression):
     """LogWriter appends messages to the chunk itself (one pack, frames straight from the
-    array); the file is byte for byte the one mcap's own ``Writer.add_message`` writes —
-    small chunks, so that many end mid-run, with out-of-order times and every topic."""
+    array) and writes each chunk's data to the file without copying it into a record
+    first; the file is byte for byte the one mcap's own ``Writer`` writes — small chunks,
+    so that many end mid-run, with out-of-order times, every topic, each compression."""
     import adfusion.logs.writer as writer
 
     fast, stock = tmp_path / "fast.mcap", tmp_path / "stock.mcap"
     with LogWriter(tmp_path / "probe.mcap") as probe:
         assert probe._appender is not None  # the fast path is in use (mcap as expected)
-    write_full_log(fast, n_frames=5, chunk_size=3000)
-    with LogWriter(fast.with_suffix(".late.mcap"), chunk_size=3000) as log:
-        for t in (2.0, 0.5, 3.0, 0.1):  # times out of order: chunk and file time bounds
-            log.write_json("/imu/gyro", t, {"omega": [t, 0.0, 0.0]})
-            log.write_image(t, _frame(int(10 * t)))
+    if compression == "zstd":
+        write_full_log(fast, n_frames=5, chunk_size=3000)
+    _mixed_log(fast.with_suffix(".mixed.mcap"), compression)
     monkeypatch.setattr(writer._MessageAppender, "of", classmethod(lambda cls, w: None))
     with LogWriter(tmp_path / "probe2.mcap") as probe:
         assert probe._appender is None
-    write_full_log(stock, n_frames=5, chunk_size=3000)
-    with LogWriter(stock.with_suffix(".late.mcap"), chunk_size=3000) as log:
-        for t in (2.0, 0.5, 3.0, 0.1):
-            log.write_json("/imu/gyro", t, {"omega": [t, 0.0, 0.0]})
-            log.write_image(t, _frame(int(10 * t)))
-    assert fast.read_bytes() == stock.read_bytes()
-    late = fast.with_suffix(".late.mcap").read_bytes()
-    assert late == stock.with_suffix(".late.mcap").read_bytes()
-    times = [m.t_s for m in McapLogReader(fast.with_suffix(".late.mcap"))]
-    assert times == [0.1, 0.1, 0.5, 0.5, 2.0, 2.0, 3.0, 3.0]
+    if compression == "zstd":
+        write_full_log(stock, n_frames=5, chunk_size=3000)
+        assert fast.read_bytes() == stock.read_bytes()
+    _mixed_log(stock.with_suffix(".mixed.mcap"), compression)
+    mixed = fast.with_suffix(".mixed.mcap")
+    assert mixed.read_bytes() == stock.with_suffix(".mixed.mcap").read_bytes()
+    times = [m.t_s for m in McapLogReader(mixed) if m.topic == "/camera/image"]
+    assert times == [0.1, 0.1, 0.5, 2.0, 3.0, 4.0]
 
 
 @pytest.mark.parametrize("case", ["mono8", "mono16", "bgr8", "strided", "transposed",
