@@ -76,11 +76,12 @@ class LostInSpace:
     """The lost-in-space half of :class:`starid.Solver` (a mixin: it uses the solver's
     index, settings and verification)."""
 
-    def _trial_budget(self, n_scales: int) -> int:
-        """(pattern, focal guess) trials a frame may take: ``max_patterns`` per guess, for
-        at most :data:`MAX_BUDGET_SCALES` guesses — a wide FOV range (5°–40°: 200 guesses)
-        must not make a frame without an answer cost 200× a known camera's."""
-        return self.max_patterns * min(n_scales, MAX_BUDGET_SCALES)
+    def _trial_budget(self, n_scales: int, per_guess: int | None = None) -> int:
+        """(pattern, focal guess) trials a frame may take: ``max_patterns`` (or
+        ``per_guess``) per guess, for at most :data:`MAX_BUDGET_SCALES` guesses — a wide
+        FOV range (5°–40°: 200 guesses) must not make a frame without an answer cost 200×
+        a known camera's."""
+        return (per_guess or self.max_patterns) * min(n_scales, MAX_BUDGET_SCALES)
 
     def _focal_scales(self) -> list[float]:
         """Focal-length multipliers covering the FOV uncertainty (1.0 first)."""
@@ -176,7 +177,8 @@ class LostInSpace:
                                         [path for _, path in pats])
         return self._pattern_lists[key]
 
-    def _solve_at(self, xy: NDArray, cams: list[Camera]) -> tuple[Solution, int]:
+    def _solve_at(self, xy: NDArray, cams: list[Camera],
+                  per_guess: int | None = None) -> tuple[Solution, int]:
         """Try patterns in order; each pattern at every focal-length guess (so the right
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
         one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
@@ -187,7 +189,9 @@ class LostInSpace:
         tables = [PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
         run = Search()
         trials = self._trials_compiled if self._compiled else self._trials_numpy
-        for ci, sel, assignments, quicks, path in trials(xy, cams, b_cams, tables, run):
+        budget = self._trial_budget(len(cams), per_guess)
+        for ci, sel, assignments, quicks, path in trials(xy, cams, b_cams, tables, run,
+                                                         budget):
             cam = cams[ci]
             cands = [c for a, q in zip(assignments, quicks, strict=True)
                      if q is not None and q[0] <= self.p_false_max
@@ -224,7 +228,8 @@ class LostInSpace:
         return Solution(False, reason, matching_counter=run.first_counter or 0), tried
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
-                         tables: list[PairWindows], run: Search) -> Iterator[tuple]:
+                         tables: list[PairWindows], run: Search,
+                         budget: int) -> Iterator[tuple]:
         """The search of :meth:`_solve_at` in compiled code (:func:`kernels.search`):
         yields (guess, sel, assignments, quick checks, path) of every trial with a
         candidate whose quick p_false passes, for :meth:`_verify`; ``run`` keeps the
@@ -246,7 +251,7 @@ class LostInSpace:
                                           for f in ("angles", "tol", "cos_min", "cos_max")]
         while True:
             sel, rows, q, wp, wi = kernels.search(
-                self._ix, state, pats, plen, self._trial_budget(n_cams), no_match,
+                self._ix, state, pats, plen, budget, no_match,
                 n_no_match, *stack, radius, floor, self.p_false_max, self.work_budget)
             if len(wp):
                 run.weak_rows.append((wp, wi, paths))
@@ -268,10 +273,10 @@ class LostInSpace:
             state[:2] = (pos, ci + 1) if ci + 1 < n_cams else (pos + 1, 0)
 
     def _trials_numpy(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
-                      tables: list[PairWindows], run: Search) -> Iterator[tuple]:
+                      tables: list[PairWindows], run: Search,
+                      budget: int) -> Iterator[tuple]:
         """:meth:`_trials_compiled` in Python, for the matchers kept in numpy (Renken's
         faithful loops, declination bands): the same trials, counts and values."""
-        budget = self._trial_budget(len(cams))
         # detection sets (bit masks) that matched nothing, per focal guess: a pattern
         # holding one of them matches nothing either (every window of the smaller set is
         # one of its own), so it is counted as tried but not matched — the swaps and

@@ -126,6 +126,8 @@ class Solution:
     sigma_px: float | None = None
     #: what the solver decided on the way that the caller should know (not an error)
     note: str = ""
+    #: tracking: catalogue stars the prior predicted in the frame (0 for lost-in-space)
+    n_predicted: int = 0
 
     @property
     def ra_dec_roll_deg(self) -> tuple[float, float, float] | None:

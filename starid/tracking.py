@@ -342,7 +342,7 @@ class Tracking:
                         matching_counter=1, covariance=cov, mode="tracking",
                         time_s=time.perf_counter() - t0, p_false=p_false, path="tracking",
                         candidates=[cand], residuals_rad=w.residuals_rad, camera=cam,
-                        n_detections=len(xy))
+                        n_detections=len(xy), n_predicted=len(pred_xy))
 
 
 def pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,

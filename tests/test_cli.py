@@ -56,6 +56,24 @@ def test_errors_are_messages_not_tracebacks(capsys, tmp_path):
     assert main(["simulate", "oedipus", "-o", str(tmp_path / "x.mcap"), "--duration", "0"]) == 2
 
 
+def test_camera_and_fov_together_is_a_usage_error(capsys, tmp_path):
+    """`--camera` silently won over `--fov` (new-user trial): both name the field of view,
+    so giving both is exit 2 with a one-line message, in every command that takes them."""
+    import cv2
+    import numpy as np
+
+    img = tmp_path / "f.png"
+    cv2.imwrite(str(img), np.zeros((48, 64), np.uint8))
+    cam = tmp_path / "cam.yaml"
+    cam.write_text("not read: the flags are checked first\n")
+    for argv in (["solve", str(img)], ["calibrate", str(img), "-o", str(tmp_path / "c.yaml")],
+                 ["replay", str(img), "-o", str(tmp_path / "o.mcap")]):
+        capsys.readouterr()
+        assert main([*argv, "--camera", str(cam), "--fov", "10"]) == 2, argv
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+        assert len(err) == 1 and "--camera or --fov, not both" in err[0], (argv, err)
+
+
 def test_an_undecodable_image_is_one_line_on_stderr(tmp_path):
     """OpenCV's own log lines (`[ERROR:0@1.1] global grfmt_png.cpp …`) went to the terminal
     ahead of our message: a broken image is one line on the process's stderr, exit 1."""

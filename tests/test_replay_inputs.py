@@ -116,6 +116,8 @@ def test_folder_of_frames_with_timestamps_and_imu_csv(flight, tmp_path, capsys):
     assert len(e) == 90 and float(np.sqrt(np.mean(e**2))) < 0.05
     r = McapLogReader(out)
     assert r.start_utc.startswith("1995-11-07T08:07:00")  # log times in UTC
+    # the catalogue at the frames' epoch, not J2000 (the folder has no config of its own)
+    assert abs(r.metadata["replay"]["catalog_epoch"] - (1995 + 310.34 / 365.25)) < 0.01
     first = next(rec.log_time for _, rec in r.raw_records())
     import datetime as dt
 

@@ -307,7 +307,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--mag-limit", type=magnitude_limit, default=None,
                    help="catalogue limit, V (default: the log's, else 6.5, as solve)")
     g.add_argument("--epoch", type=float, help="catalogue epoch, Julian year (default: the "
-                   "log's, else 2000)")
+                   "log's, else its start time's, else 2000)")
     g = rp.add_argument_group("filter and output")
     g.add_argument("--no-gyro", action="store_true", help="ignore the gyro (video only: the "
                    "filter estimates the rate)")
@@ -538,6 +538,7 @@ class _Solvers:
     def __init__(self, args: argparse.Namespace) -> None:
         from adfusion import starid
 
+        _camera_or_fov(args)
         self.args = args
         self.epoch = args.epoch if args.epoch is not None else _julian_year_now()
         self.catalog = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=self.epoch)
@@ -587,6 +588,15 @@ class _Solvers:
                 solver.warm_up()  # the reported time is the solve's, not the kernels' loading
             self._by_size[key] = solver
         return self._by_size[key]
+
+
+def _camera_or_fov(args: argparse.Namespace) -> None:
+    """--camera and --fov both name the field of view; which one should win is the user's
+    call, so neither does silently (the camera file's focal length fixes it, --fov-error
+    widens it)."""
+    if getattr(args, "camera", None) and getattr(args, "fov", None) is not None:
+        raise UsageError("give --camera or --fov, not both (the camera file's focal length "
+                         "fixes the field of view; --fov-error widens it)")
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
@@ -783,6 +793,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from adfusion.starid.detect import read_image
     from adfusion.starid.joint_calibration import calibrate_frames
 
+    _camera_or_fov(args)
     paths = _image_paths(args.images)
     if args.camera:
         camera = read_camera_yaml(args.camera)
@@ -932,6 +943,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     from adfusion.app.replay import ReplayOptions, replay
 
+    _camera_or_fov(args)
     camera = None
     if args.camera:
         from adfusion.app.camera_file import load_camera

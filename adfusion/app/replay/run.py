@@ -131,7 +131,8 @@ class Run:
     @property
     def replay_metadata(self) -> dict[str, Any]:
         return {"input": self.source.name, "use_gyro": self.options.use_gyro,
-                "use_mag": self.options.use_mag, "catalog_mag_limit": self.catalog_mag_limit}
+                "use_mag": self.options.use_mag, "catalog_mag_limit": self.catalog_mag_limit,
+                "catalog_epoch": float(self.solver.catalog.epoch)}
 
 
 def _section(config: dict[str, Any], key: str, name: str) -> dict[str, Any]:
@@ -183,6 +184,25 @@ def _configuration(source: Source, options: ReplayOptions) -> tuple[dict, dict]:
                      "with an identity mounting and default noise (recorded in the output)")
 
 
+def _julian_year(start_utc) -> float:
+    """Julian year of a UTC start time (ISO text or aware datetime); 2000.0 without one or
+    for one that does not parse (the start time is checked, with its own message, later).
+
+    >>> round(_julian_year("1995-11-07T08:07:00Z"), 3), _julian_year(None)
+    (1995.849, 2000.0)
+    """
+    from adfusion.logs.writer import utc_ns
+
+    if not start_utc:
+        return 2000.0
+    try:
+        ns = utc_ns(start_utc)
+    except (TypeError, ValueError):
+        return 2000.0
+    j2000_ns = 946_728_000 * 10**9  # 2000-01-01T12:00:00 UTC
+    return 2000.0 + (ns - j2000_ns) / (365.25 * 86400 * 1e9)
+
+
 def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     """Camera, catalogue, solver and estimator from the input's model and configuration."""
     name = source.name
@@ -201,8 +221,12 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     catalog_cfg = _section(config, "catalog", name)
     cam_cfg = _section(config, "camera", name)
     gyro_cfg = _section(config, "gyro", name)
+    start = options.start_utc or getattr(source, "start_utc", None) or config.get("start_utc")
+    # the stars where they were when the log was taken: its own epoch, else its start time,
+    # else J2000 (proper motion moves a few stars by arcseconds per decade)
     epoch = float(options.epoch if options.epoch is not None
-                  else _number(catalog_cfg, "epoch", 2000.0, "config.catalog.", name))
+                  else _number(catalog_cfg, "epoch", _julian_year(start), "config.catalog.",
+                               name))
     limit = (options.mag_limit if options.mag_limit is not None
              else _number(config, "mag_limit", 6.5, "config.", name))  # as adfusion solve
     catalog = Catalog.hipparcos(mag_limit=limit, epoch=epoch)
@@ -223,7 +247,6 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     est = Estimator(solver, q_body_cam, arw_rad_sqrt_s=float(arw), rrw_rad_s_sqrt_s=float(rrw),
                     video_only=not options.use_gyro, detect=ahead,
                     exposure_s=None if exposure is None else float(exposure))
-    start = options.start_utc or getattr(source, "start_utc", None) or config.get("start_utc")
     r = Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start,
             assumptions=assumed)
     r.heads = [Head(0, camera, q_body_cam, solver)]
