@@ -46,8 +46,8 @@ def dumps(value: Any) -> str:
 
 def dumps_bytes(value: Any) -> bytes:
     """:func:`dumps` as UTF-8 bytes, through ``orjson`` (~5× faster on a replay's records:
-    ~0.1 ms of the main process a frame). The values read back are the same — numpy arrays
-    become lists of the same floats, NaN and infinity ``null`` — though the text may differ
+    0.07 → 0.012 ms of the main process a frame). The values read back are the same: numpy
+    arrays become lists of the same floats, NaN and infinity ``null``; the text may differ
     (``1e-05`` is written ``0.00001``, non-ASCII text as UTF-8 instead of ``\\u`` escapes).
     What orjson refuses (keys that are not strings, integers beyond 64 bits, lone
     surrogates, what :func:`json_default` cannot convert) goes to :func:`dumps`, which
