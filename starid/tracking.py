@@ -328,6 +328,12 @@ class Tracking:
                 pairs = len(xy) * (len(xy) - 1) / 2
                 p_false = max(p_false, min(1.0, pairs * per_gate * per_gate
                                            * min(1.0, tol_px / wide)))
+        if len(det_i) >= 3:
+            # a star the others do not pin: its pairing must be the only one that fits
+            n_alt = self._alternatives_of_critical_stars(xy, det_i, cat_i, b_use, w.q_cam_icrs,
+                                                         cov, prior, pred_idx, tight)
+            if n_alt:
+                p_false = max(p_false, n_alt / (n_alt + 1.0))
         matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
         cand = Candidate(
             q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,
@@ -343,6 +349,68 @@ class Tracking:
                         time_s=time.perf_counter() - t0, p_false=p_false, path="tracking",
                         candidates=[cand], residuals_rad=w.residuals_rad, camera=cam,
                         n_detections=len(xy), n_predicted=len(pred_xy))
+
+
+    def _alternatives_of_critical_stars(self, xy: NDArray, det_i: NDArray, cat_i: NDArray,
+                                        b_use: NDArray, q_fix: NDArray, cov: NDArray,
+                                        prior: Prior, pred_idx: NDArray,
+                                        tight: float) -> int:
+        """Other catalogue stars that could have been paired with a star the rest of the
+        fix does not pin: the 2-star rule for more stars.
+
+        Three stars close together pin the pointing but leave the roll to a fourth, far
+        one; when that star has a neighbour in the catalogue, pairing its detection with
+        the neighbour turns the roll and fits as well. The long fuzz run (seed 41) accepted
+        such a fix 1.67° off at p_false 3.5e-6 under a right prior of σ 0.5° (three stars
+        of one group, the fourth a Pleiades member taken for the next one). For each
+        matched star: where the other stars and the prior place it (1σ from the fix's
+        information less its own, plus the prior's). A star placed no better than the
+        match radius has as alternatives the predicted stars farther than the match radius
+        (nearer ones give the same attitude) but within 3σ + the match radius. The caller
+        makes ``p_false`` at least n/(n + 1)."""
+        cam = self.camera
+        f = 1.0 / cam.pixel_scale_rad
+        r = 0.5 * math.hypot(cam.width, cam.height)
+        k = f * (1.0 + (r / f) ** 2)  # px per radian of pointing at the frame's edge
+        prior_var = math.radians(prior.sigma_deg) ** 2
+        if 3.0 * math.sqrt(2.0 * prior_var * k * k + prior_var * r * r) <= tight:
+            return 0  # the prior alone pins every star within the match radius
+        try:
+            info = np.linalg.inv(cov)
+        except np.linalg.LinAlgError:
+            return 0
+        b = np.asarray(b_use, dtype=np.float64)
+        proj = np.eye(3)[None] - b[:, :, None] * b[:, None, :]
+        # the stars share one weight (one centroid σ, one variance factor)
+        weight = float(np.trace(info)) / max(float(np.trace(proj.sum(axis=0))), 1e-300)
+        without = info[None] - weight * proj + np.eye(3)[None] / prior_var
+        try:
+            c = np.linalg.inv(without)
+        except np.linalg.LinAlgError:
+            return 0
+        # a star's direction moves by δθ × b: its covariance [b]ₓ C [b]ₓᵀ, in the image
+        # (x, y) block, at the frame edge's scale
+        bx = np.zeros((len(b), 3, 3))
+        bx[:, 0, 1], bx[:, 0, 2], bx[:, 1, 2] = -b[:, 2], b[:, 1], -b[:, 0]
+        bx -= bx.transpose(0, 2, 1)
+        cb = bx @ c @ bx.transpose(0, 2, 1)
+        sigma_px = k * np.sqrt(np.maximum(cb[:, 0, 0] + cb[:, 1, 1], 0.0))
+        reach = 3.0 * np.minimum(sigma_px, r) + tight
+        # a star pinned to within the match radius keeps its pairing: another one would
+        # leave a residual the fit's rejection removes
+        loose = np.flatnonzero(sigma_px >= tight)
+        if not len(loose):
+            return 0
+        # the predicted stars where the fix puts them
+        v_cam = rot.rotate(q_fix, self.vectors[pred_idx])
+        front = v_cam[:, 2] > 0
+        pxy = cam.vectors_to_pixels(v_cam[front])
+        rows = pred_idx[front]
+        n_alt = 0
+        for i in loose.tolist():
+            d = np.hypot(*(pxy - xy[det_i[i]]).T)
+            n_alt += int(np.count_nonzero((d > tight) & (d <= reach[i]) & (rows != cat_i[i])))
+        return n_alt
 
 
 def pair_within(xy: NDArray, pred_xy: NDArray, pred_idx: NDArray,

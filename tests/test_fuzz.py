@@ -126,8 +126,9 @@ def test_a_three_star_fix_near_a_wrong_loose_prior_is_not_accepted():
         "ok", "reported")
 
 
-# The final 32-minute run of session 6 (seed 37, at da72860; also wrong at dbf07b3):
-# wrong attitudes accepted before the cross-checks of a fix that explains few stars
+# Wrong attitudes the long fuzz runs accepted: seed 37 (at da72860; also wrong at dbf07b3)
+# before the cross-checks of a fix that explains few stars, seed 41 before the
+# alternatives of a star the others do not pin
 _LONG_RUN_WRONG = [
     # tracking under a tight prior 20σ wrong: 2–4 chance pairs near the prior, fixes
     # 0.9–1.2° off at p_false 1e-6–7e-5 (Solver._cross_checked)
@@ -137,6 +138,10 @@ _LONG_RUN_WRONG = [
     # lost in space, 11 false stars, 70 % dropped: 7 stars matched 162° off, p_false 5.9e-7
     # (Solver._rest_checked)
     (1875421584, 20.0, 11, 0.7, 0.1, "none", 10.0, 3.0),
+    # seed 41 (at af4f38c): a right prior of σ 0.5°, 4 stars, the roll resting on one of
+    # them paired with its Pleiades neighbour: 1.67° off at p_false 3.5e-6
+    # (Tracking._alternatives_of_critical_stars)
+    (996432571, 12.0, 2, 0.7, 1.5, "prior", 0.05, 0.5),
 ]
 
 
