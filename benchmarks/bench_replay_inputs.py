@@ -8,9 +8,12 @@ so that a busy machine slows them alike; the best round's frames per second is r
 (and the median of the rounds, also as a ratio to the MCAP replay's)
 (end to end, and after the setup: catalogue, solver warm-up, worker start), with the
 attitude error against the flight's truth and the CPU time of reading each input alone
-(decoding its frames). The folder and the video are replayed with the settings the MCAP
-carries in its configuration (catalogue limit and epoch, mounting, noise), so all three do
-the same work.
+(decoding its frames), and the CPU time of each replay per frame — the replay's own process
+(reading, decoding on its thread, identification, filter, writing) and the detection
+worker's — as the median of the rounds: the machine is shared, and CPU time says what a
+change saved when the frames per second mostly say how busy the others were. The folder
+and the video are replayed with the settings the MCAP carries in its configuration
+(catalogue limit and epoch, mounting, noise), so all three do the same work.
 
 Usage (from the repository root)::
 
@@ -29,6 +32,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -81,6 +85,12 @@ def _error_rms_deg(out: Path, sim: Path) -> float:
     return float(np.sqrt(np.mean(e**2)))
 
 
+def _children_cpu_s() -> float:
+    """CPU seconds of the finished child processes (each replay's detection worker)."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _read_ms(d: Path) -> dict[str, float]:
     """CPU milliseconds a frame to read each input alone (every message, frames decoded),
     the part of a replay that differs between the inputs."""
@@ -130,11 +140,15 @@ def run(duration_s: float = 20.0, rounds: int = 2) -> dict:
         }
         best: dict[str, dict] = {}
         rates: dict[str, list[float]] = {name: [] for name in cases}
+        cpu: dict[str, list[tuple[float, float]]] = {name: [] for name in cases}
         names = list(cases)
         for r in range(rounds):
             for name in names[r % 3:] + names[:r % 3]:
                 out = d / f"{name}.mcap"
+                t_cpu, children = time.process_time(), _children_cpu_s()
                 s = cases[name](out)
+                cpu[name].append(((time.process_time() - t_cpu) / s.frames * 1e3,
+                                  (_children_cpu_s() - children) / s.frames * 1e3))
                 res = {"frames_per_s": s.frames / s.wall_s,
                        "frames_per_s_after_setup": s.frames / max(s.wall_s - s.setup_s, 1e-9),
                        "identified": s.identified, "error_rms_deg": _error_rms_deg(out, sim)}
@@ -144,6 +158,9 @@ def run(duration_s: float = 20.0, rounds: int = 2) -> dict:
         for name, values in rates.items():  # on a busy machine: the median, and ÷ MCAP's
             best[name]["frames_per_s_median"] = float(np.median(values))
             best[name]["median_vs_mcap"] = float(np.median(values) / np.median(rates["mcap"]))
+            main_ms, worker_ms = np.median(np.asarray(cpu[name]), axis=0)
+            best[name]["cpu_ms_per_frame"] = {"replay_process": float(main_ms),
+                                              "detection_worker": float(worker_ms)}
         for name, ms in _read_ms(d).items():
             best[name]["read_ms_cpu_per_frame"] = ms
     return {"frames": n, "duration_s": duration_s, "rounds": rounds, "inputs": best,
@@ -167,7 +184,9 @@ def main() -> None:
               f"({v['frames_per_s_after_setup']:.1f} after setup), RMS error "
               f"{v['error_rms_deg']:.4f}°, identified {v['identified']}/{r['frames']}; "
               f"reading alone {v['read_ms_cpu_per_frame']:.2f} ms CPU a frame; median "
-              f"{v['frames_per_s_median']:.1f} frames/s, {v['median_vs_mcap']:.2f}× the MCAP's")
+              f"{v['frames_per_s_median']:.1f} frames/s, {v['median_vs_mcap']:.2f}× the MCAP's; "
+              f"CPU a frame {v['cpu_ms_per_frame']['replay_process']:.2f} ms replay process + "
+              f"{v['cpu_ms_per_frame']['detection_worker']:.2f} ms detection worker")
     print(f"load average {r['load_average_1min_before']:.2f} before, "
           f"{r['machine']['load_average_1min']:.2f} after")
 

@@ -32,6 +32,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import struct
+import zlib
 from collections.abc import Iterable, Mapping
 from types import TracebackType
 from typing import Any, Literal
@@ -39,9 +41,10 @@ from typing import Any, Literal
 import numpy as np
 from adfusion.logs import foxglove as fg
 from adfusion.logs import topics
-from adfusion.logs.jsonio import dumps, encode_metadata
+from adfusion.logs.jsonio import dumps, dumps_bytes, encode_metadata
 from adfusion.logs.schemas import GENERIC, JSON_SCHEMAS
 from google.protobuf.message import Message as ProtoMessage
+from mcap.records import ChunkIndex, MessageIndex
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
@@ -55,6 +58,131 @@ TF_TOPIC = topics.TF
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE, None: CompressionType.NONE}
+
+
+# A Message record's header (opcode 0x05, record length, channel id, sequence, log time,
+# publish time) in one pack: what mcap's Message.write writes in six.
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+# A Chunk record's header up to its compression name (opcode 0x06, record length, message
+# start and end times, uncompressed size and CRC, the name's length), and a u64 length.
+_CHUNK_HEAD = struct.Struct("<BQQQQII")
+_LENGTH = struct.Struct("<Q")
+
+
+class _MessageAppender:
+    """``mcap.Writer.add_message`` for a chunked writer, writing the same bytes and index
+    entries with one ``struct`` pack and no record object per message (the library's path,
+    a dataclass, six packs and a seek to patch the length, cost ~5 µs more a message; a
+    replay writes ~25 a frame). ``add_parts`` appends a message given in pieces (a frame
+    is header, pixels, trailer) straight from the caller's buffers, without first joining
+    them into one ``bytes``; :meth:`finalize_chunk` ends a chunk without copying its data
+    into a record buffer on the way to the file.
+
+    It uses the writer's private chunk builder, statistics and chunk ending; :meth:`of`
+    returns ``None`` (use ``Writer.add_message``) when they are not as this was written
+    against (mcap 1.6), and tests/test_logs.py compares its files byte for byte with the
+    library's own.
+    """
+
+    def __init__(self, writer: Writer) -> None:
+        self._stats = writer._Writer__statistics
+        self._chunk = writer._Writer__chunk_builder
+        self._maybe_finalize = writer._Writer__maybe_finalize_chunk
+        self._index = MessageIndex
+        self._writer = writer
+
+    @classmethod
+    def of(cls, writer: Writer) -> _MessageAppender | None:
+        try:
+            appender = cls(writer)
+            chunk = appender._chunk
+            ok = (chunk is not None and hasattr(chunk.record_writer, "_buffer")
+                  and isinstance(chunk.message_indices, dict)
+                  and hasattr(chunk, "num_messages") and hasattr(chunk, "message_start_time")
+                  and hasattr(appender._stats, "channel_message_counts")
+                  and writer._Writer__enable_data_crcs is False
+                  and isinstance(writer._Writer__chunk_indices, list)
+                  and callable(writer._Writer__flush)
+                  and callable(getattr(Writer, "_Writer__finalize_chunk", None)))
+        except AttributeError:
+            return None
+        if not ok:
+            return None
+        # name-mangled calls inside Writer (self.__finalize_chunk()) find the instance's
+        # attribute first: the writer's chunks end through finalize_chunk from now on
+        writer._Writer__finalize_chunk = appender.finalize_chunk
+        return appender
+
+    def finalize_chunk(self) -> None:
+        """``Writer.__finalize_chunk`` without copying the chunk's data into a record buffer
+        first: the Chunk record's header, then the (compressed) data, go to the file as
+        they are — a replay writes ~250 kB a frame, and the library copied it twice more."""
+        w, chunk = self._writer, self._chunk
+        if chunk.num_messages == 0:
+            return
+        self._stats.chunk_count += 1
+        data = chunk.end()
+        method = w._Writer__compression
+        if method == CompressionType.LZ4:
+            import lz4.frame
+
+            compression, stored = "lz4", lz4.frame.compress(data)  # as the library calls them
+        elif method == CompressionType.ZSTD:
+            import zstandard
+
+            compression, stored = "zstd", zstandard.compress(data)
+        else:
+            compression, stored = "", data
+        crc = zlib.crc32(data) if w._Writer__enable_crcs else 0
+        name = compression.encode()
+        body = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(stored)
+        head = (_CHUNK_HEAD.pack(0x06, body, chunk.message_start_time, chunk.message_end_time,
+                                 len(data), crc, len(name)) + name
+                + _LENGTH.pack(len(stored)))
+        flush, stream, records = w._Writer__flush, w._Writer__stream, w._Writer__record_builder
+        flush()
+        start = stream.tell()
+        stream.write(head)
+        stream.write(stored)
+        index = ChunkIndex(message_start_time=chunk.message_start_time,
+                           message_end_time=chunk.message_end_time, chunk_start_offset=start,
+                           chunk_length=len(head) + len(stored), message_index_offsets={},
+                           message_index_length=0, compression=compression,
+                           compressed_size=len(stored), uncompressed_size=len(data))
+        message_index_start = stream.tell()
+        if w._Writer__index_types & IndexType.MESSAGE:
+            for channel_id, message_index in chunk.message_indices.items():
+                index.message_index_offsets[channel_id] = message_index_start + records.count
+                message_index.write(records)
+        index.message_index_length = records.count
+        flush()
+        w._Writer__chunk_indices.append(index)
+        chunk.reset()
+
+    def add_parts(self, channel_id: int, log_time: int, sequence: int,
+                  parts: tuple, size: int) -> None:
+        stats, chunk = self._stats, self._chunk
+        if stats.message_count == 0 or log_time < stats.message_start_time:
+            stats.message_start_time = log_time
+        if log_time > stats.message_end_time:
+            stats.message_end_time = log_time
+        stats.channel_message_counts[channel_id] += 1
+        stats.message_count += 1
+        if chunk.num_messages == 0 or log_time < chunk.message_start_time:
+            chunk.message_start_time = log_time
+        if log_time > chunk.message_end_time:
+            chunk.message_end_time = log_time
+        buf = chunk.record_writer._buffer
+        index = chunk.message_indices.get(channel_id)
+        if not index:
+            index = chunk.message_indices[channel_id] = self._index(channel_id=channel_id,
+                                                                    records=[])
+        index.records.append((log_time, buf.tell()))
+        chunk.num_messages += 1
+        buf.write(_MESSAGE_HEAD.pack(5, 22 + size, channel_id, sequence, log_time, log_time))
+        for part in parts:
+            buf.write(part)
+        self._maybe_finalize()
 
 
 def utc_ns(when: Any) -> int:
@@ -177,6 +305,7 @@ class LogWriter:
             index_types=IndexType.ALL,
         )
         self._writer.start(profile="", library="adfusion logs")
+        self._appender = _MessageAppender.of(self._writer)
         self._digests: dict[str, str] = {}  # record name → sha256 (see digest_metadata)
         if start_utc is not None:
             clock = encode_metadata({"start_utc": utc_iso(start_utc),
@@ -273,11 +402,23 @@ class LogWriter:
         self._channels[topic] = (channel_id, kind)
         return channel_id
 
-    def _add(self, channel_id: int, t_ns: int, data: bytes) -> None:
+    def _add(self, channel_id: int, t_ns: int, data: bytes, *parts: Any) -> None:
+        """One message: ``data`` (with ``parts``, buffers that follow it in the message)."""
         if self._closed:
             raise ValueError("write to a closed LogWriter")
-        self._writer.add_message(channel_id=channel_id, log_time=t_ns, data=data,
-                                 publish_time=t_ns, sequence=self.message_count)
+        if self._appender is not None:
+            if parts:
+                pieces = (data, *parts)
+                self._appender.add_parts(channel_id, t_ns, self.message_count, pieces,
+                                         sum(len(p) for p in pieces))
+            else:
+                self._appender.add_parts(channel_id, t_ns, self.message_count, (data,),
+                                         len(data))
+        else:
+            if parts:
+                data = b"".join((data, *parts))
+            self._writer.add_message(channel_id=channel_id, log_time=t_ns, data=data,
+                                     publish_time=t_ns, sequence=self.message_count)
         self.message_count += 1
 
     def _write_proto(self, topic: str, t_ns: int, msg: ProtoMessage) -> None:
@@ -301,8 +442,9 @@ class LogWriter:
         t_ns = self._ns(t_s)
         if png:
             self._write_proto(topic, t_ns, fg.encode_png_image(t_ns, image, frame_id))
-        else:
-            self._write_proto(topic, t_ns, fg.encode_raw_image(t_ns, image, frame_id))
+        else:  # the pixels go from the array into the chunk, not through two copies first
+            self._add(self._channel(topic, "foxglove.RawImage"), t_ns,
+                      *fg.encode_raw_image_parts(t_ns, image, frame_id))
 
     def write_annotations(self, t_s: float, detections_xy: ArrayLike | None = None,
                           identified: Iterable[tuple[float, float, Any]] = (),
@@ -367,7 +509,7 @@ class LogWriter:
     def write_json(self, topic: str, t_s: float, payload: Mapping[str, Any]) -> None:
         """One JSON message (numpy values become lists, NaN/inf become ``null``). Topics of
         :data:`logs.schemas.JSON_SCHEMAS` carry their schema; others a generic object one."""
-        self._add(self._channel(topic, "json"), self._ns(t_s), dumps(payload).encode())
+        self._add(self._channel(topic, "json"), self._ns(t_s), dumps_bytes(payload))
 
     def write_json_bytes(self, topic: str, t_s: float, data: bytes) -> None:
         """One JSON message already encoded (``Message.raw`` of an input being copied)."""

@@ -636,3 +636,64 @@ def test_json_dumps_equals_the_converted_copy():
     assert json.loads(dumps(cases[2])) == {"nis": None, "cov": [1.0, None, 2.0], "e": None}
     with pytest.raises(TypeError, match="cannot write object"):
         dumps({"o": object()})
+
+
+def _mixed_log(path: Path, compression: str) -> None:
+    with LogWriter(path, chunk_size=3000, compression=compression) as log:
+        for t in (2.0, 0.5, 3.0, 0.1, 0.1):  # times out of order: chunk and file time bounds
+            log.write_json("/imu/gyro", t, {"omega": [t, 0.0, 0.0]})
+            log.write_image(t, _frame(int(10 * t)))
+            log.write_annotations(t, [[1.0, 2.0]], [(1.0, 2.0, "HIP 7")])
+        log.flush()  # a chunk ended by hand, then an empty one
+        log.flush()
+        log.write_image(4.0, _frame(4, np.uint16))
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_messages_are_written_as_the_mcap_library_writes_them(tmp_path, monkeypatch,
+                                                              compression):
+    """LogWriter appends messages to the chunk itself (one pack, frames straight from the
+    array) and writes each chunk's data to the file without copying it into a record
+    first; the file is byte for byte the one mcap's own ``Writer`` writes — small chunks,
+    so that many end mid-run, with out-of-order times, every topic, each compression."""
+    import adfusion.logs.writer as writer
+
+    fast, stock = tmp_path / "fast.mcap", tmp_path / "stock.mcap"
+    with LogWriter(tmp_path / "probe.mcap") as probe:
+        assert probe._appender is not None  # the fast path is in use (mcap as expected)
+    if compression == "zstd":
+        write_full_log(fast, n_frames=5, chunk_size=3000)
+    _mixed_log(fast.with_suffix(".mixed.mcap"), compression)
+    monkeypatch.setattr(writer._MessageAppender, "of", classmethod(lambda cls, w: None))
+    with LogWriter(tmp_path / "probe2.mcap") as probe:
+        assert probe._appender is None
+    if compression == "zstd":
+        write_full_log(stock, n_frames=5, chunk_size=3000)
+        assert fast.read_bytes() == stock.read_bytes()
+    _mixed_log(stock.with_suffix(".mixed.mcap"), compression)
+    mixed = fast.with_suffix(".mixed.mcap")
+    assert mixed.read_bytes() == stock.with_suffix(".mixed.mcap").read_bytes()
+    times = [m.t_s for m in McapLogReader(mixed) if m.topic == "/camera/image"]
+    assert times == [0.1, 0.1, 0.5, 2.0, 3.0, 4.0]
+
+
+@pytest.mark.parametrize("case", ["mono8", "mono16", "bgr8", "strided", "transposed",
+                                  "empty", "tall", "no frame id"])
+def test_raw_image_parts_are_the_protobuf_librarys_bytes(case):
+    from adfusion.logs import foxglove as fg
+
+    rng = np.random.default_rng(7)
+    img = {"mono8": rng.integers(0, 256, (48, 64), dtype=np.uint8),
+           "mono16": rng.integers(0, 65536, (48, 64), dtype=np.uint16),
+           "bgr8": rng.integers(0, 256, (9, 7, 3), dtype=np.uint8),
+           "strided": rng.integers(0, 256, (20, 30), dtype=np.uint8)[:, 3::2],
+           "transposed": rng.integers(0, 256, (20, 30), dtype=np.uint8).T,
+           "empty": np.zeros((0, 5), np.uint8),
+           "tall": rng.integers(0, 256, (70000, 3), dtype=np.uint8),
+           "no frame id": rng.integers(0, 256, (4, 4), dtype=np.uint8)}[case]
+    frame_id = "" if case == "no frame id" else "camera2"
+    for t_ns in (0, 999_999_999, 1_700_000_000_123_456_789):
+        parts = fg.encode_raw_image_parts(t_ns, img, frame_id)
+        want = fg.encode_raw_image(t_ns, img, frame_id).SerializeToString()
+        assert b"".join(parts) == want
+        assert np.array_equal(fg.decode("foxglove.RawImage", b"".join(parts)), img)
