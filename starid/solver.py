@@ -79,6 +79,8 @@ _REST_CHECK_SHARE = 0.5
 # patterns the rest of a frame is searched with (stars left over in numbers are found in
 # the first few; the full budget on a rest of noise would cost ~10× the fix)
 _CHECK_PATTERNS = 20
+# the bound of Solver.warm_up's search of its synthetic frame (patterns, partial assignments)
+_WARM_UP_PATTERNS, _WARM_UP_WORK = 3, 20_000
 _CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
 # the names these helpers had before the split (solver.py held them all)
@@ -407,7 +409,19 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
                 break
         else:
             return False
-        solved = self.solve(pxy[:8]).ok  # the search
+        if self.method == "nstar":
+            # the search, bounded: the kernels compile on their first call whatever it
+            # finds, and a camera whose match windows span degrees (32×24 px over 44°:
+            # 1.4° a pixel) spent ~110 s solving this frame (the fuzz's CLI cases)
+            xy8 = np.ascontiguousarray(pxy[:8])
+            budget, self.work_budget = self.work_budget, min(self.work_budget, _WARM_UP_WORK)
+            try:
+                sol, _ = self._solve_at(xy8, [self.camera], _WARM_UP_PATTERNS)
+            finally:
+                self.work_budget = budget
+            solved = self._refine(sol, xy8).ok
+        else:
+            solved = self.solve(pxy[:8]).ok
         if self.method == "nstar":  # every detection count's pattern lists (~0.1 s)
             for n_det in range(3, self.max_detections + 1):
                 self._pattern_list(n_det, False)  # Renken's, searched first
