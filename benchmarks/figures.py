@@ -213,7 +213,8 @@ def replay_inputs_section(doc: dict[str, Any], command: str) -> str:
     """Replay throughput by input (``benchmarks/bench_replay_inputs.py``): frames per
     second (best round and median), the CPU a frame of the replay process and of the
     detection worker (medians), reading alone, and the estimates' agreement."""
-    names = {"mcap": "our MCAP", "folder": "PNG folder + CSVs", "video": "FFV1 video + CSV"}
+    names = {"mcap": "our MCAP", "folder": "PNG folder + CSVs", "video": "FFV1 video + CSV",
+             "video_mjpg": "Motion-JPEG video + CSV"}
     w, h = doc["frame_size"]
     lines = [
         "### Replay inputs",
