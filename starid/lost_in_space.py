@@ -178,10 +178,13 @@ class LostInSpace:
         return self._pattern_lists[key]
 
     def _solve_at(self, xy: NDArray, cams: list[Camera],
-                  per_guess: int | None = None) -> tuple[Solution, int]:
+                  per_guess: int | None = None,
+                  work_budget: int | None = None) -> tuple[Solution, int]:
         """Try patterns in order; each pattern at every focal-length guess (so the right
         scale is found by the main pattern, not after exhausting Not-Modus at a wrong
-        one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``."""
+        one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``.
+        ``per_guess`` and ``work_budget`` bound this search below the solver's own
+        ``max_patterns`` and ``work_budget`` (the warm-up's small search)."""
         b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
         rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
         # every pattern's pair windows come from one table per focal guess: cheaper than
@@ -190,8 +193,9 @@ class LostInSpace:
         run = Search()
         trials = self._trials_compiled if self._compiled else self._trials_numpy
         budget = self._trial_budget(len(cams), per_guess)
+        work = self.work_budget if work_budget is None else min(work_budget, self.work_budget)
         for ci, sel, assignments, quicks, path in trials(xy, cams, b_cams, tables, run,
-                                                         budget):
+                                                         budget, work):
             cam = cams[ci]
             cands = [c for a, q in zip(assignments, quicks, strict=True)
                      if q is not None and q[0] <= self.p_false_max
@@ -229,7 +233,7 @@ class LostInSpace:
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
                          tables: list[PairWindows], run: Search,
-                         budget: int) -> Iterator[tuple]:
+                         budget: int, work: int) -> Iterator[tuple]:
         """The search of :meth:`_solve_at` in compiled code (:func:`kernels.search`):
         yields (guess, sel, assignments, quick checks, path) of every trial with a
         candidate whose quick p_false passes, for :meth:`_verify`; ``run`` keeps the
@@ -252,7 +256,7 @@ class LostInSpace:
         while True:
             sel, rows, q, wp, wi = kernels.search(
                 self._ix, state, pats, plen, budget, no_match,
-                n_no_match, *stack, radius, floor, self.p_false_max, self.work_budget)
+                n_no_match, *stack, radius, floor, self.p_false_max, work)
             if len(wp):
                 run.weak_rows.append((wp, wi, paths))
             pos, ci, run.tried, first, status, note, a, b = state.tolist()
@@ -274,7 +278,7 @@ class LostInSpace:
 
     def _trials_numpy(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
                       tables: list[PairWindows], run: Search,
-                      budget: int) -> Iterator[tuple]:
+                      budget: int, work: int) -> Iterator[tuple]:
         """:meth:`_trials_compiled` in Python, for the matchers kept in numpy (Renken's
         faithful loops, declination bands): the same trials, counts and values."""
         # detection sets (bit masks) that matched nothing, per focal guess: a pattern
@@ -295,7 +299,7 @@ class LostInSpace:
                 sel = sel[closest_pair_first(tables[ci].angles[sel[:, None], sel])]
                 pattern, _ = tables[ci].pattern(sel, b_all)
                 try:
-                    assignments = self._match(pattern)
+                    assignments = self._match(pattern, work)
                 except WorkBudgetExceeded as e:
                     run.budget_note = f"work budget exceeded ({e})"
                     continue

@@ -414,11 +414,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             # finds, and a camera whose match windows span degrees (32×24 px over 44°:
             # 1.4° a pixel) spent ~110 s solving this frame (the fuzz's CLI cases)
             xy8 = np.ascontiguousarray(pxy[:8])
-            budget, self.work_budget = self.work_budget, min(self.work_budget, _WARM_UP_WORK)
-            try:
-                sol, _ = self._solve_at(xy8, [self.camera], _WARM_UP_PATTERNS)
-            finally:
-                self.work_budget = budget
+            sol, _ = self._solve_at(xy8, [self.camera], _WARM_UP_PATTERNS, _WARM_UP_WORK)
             solved = self._refine(sol, xy8).ok
         else:
             solved = self.solve(pxy[:8]).ok
@@ -513,16 +509,17 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         rest = rest[self.camera.in_frame(rest)]
         return np.concatenate([use, rest])
 
-    def _match(self, pattern: Pattern) -> NDArray[np.int64]:
+    def _match(self, pattern: Pattern, work_budget: int | None = None) -> NDArray[np.int64]:
+        work = self.work_budget if work_budget is None else work_budget
         if self.faithful:
             return match_faithful(self.vectors, pattern, self.dec_check, self._band_masks(
                 pattern))
         if self.n_bands > 1:
-            parts = [match_indexed(self.index, pattern, self.work_budget, m)
+            parts = [match_indexed(self.index, pattern, work, m)
                      for m in self._band_masks(pattern)]
             allm = np.concatenate(parts)
             return np.unique(allm, axis=0) if len(allm) else allm
-        return match_indexed(self.index, pattern, self.work_budget)
+        return match_indexed(self.index, pattern, work)
 
     def _band_masks(self, pattern: Pattern) -> list[NDArray[np.bool_]] | None:
         if self.n_bands <= 1:

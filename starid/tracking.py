@@ -370,12 +370,9 @@ class Tracking:
         match radius has as alternatives the predicted stars farther than the match radius
         (nearer ones give the same attitude) but within 3σ + the match radius. The caller
         makes ``p_false`` at least n/(n + 1)."""
-        cam = self.camera
-        f = 1.0 / cam.pixel_scale_rad
-        r = 0.5 * math.hypot(cam.width, cam.height)
-        k = f * (1.0 + (r / f) ** 2)  # px per radian of pointing at the frame's edge
+        r, k = _edge_scales(self.camera)
         prior_var = math.radians(prior.sigma_deg) ** 2
-        if 3.0 * math.sqrt(2.0 * prior_var * k * k + prior_var * r * r) <= tight:
+        if 3.0 * corner_sigma_px(prior_var * np.eye(3), self.camera) <= tight:
             return 0  # the prior alone pins every star within the match radius
         try:
             info = np.linalg.inv(cov)
@@ -406,7 +403,7 @@ class Tracking:
         # the predicted stars where the fix puts them
         v_cam = rot.rotate(q_fix, self.vectors[pred_idx])
         front = v_cam[:, 2] > 0
-        pxy = cam.vectors_to_pixels(v_cam[front])
+        pxy = self.camera.vectors_to_pixels(v_cam[front])
         rows = pred_idx[front]
         n_alt = 0
         for i in loose.tolist():
@@ -427,12 +424,16 @@ def corner_sigma_px(cov: NDArray, cam: Camera) -> float:
     """1-σ shift (px) of the frame's corners under an attitude covariance (camera frame):
     pointing errors (x, y axes) move a corner by f·(1 + tan²θ) per radian, roll (z) by its
     distance r from the centre; correlations ignored (an upper estimate)."""
-    f = 1.0 / cam.pixel_scale_rad
-    r = 0.5 * math.hypot(cam.width, cam.height)
-    k = f * (1.0 + (r / f) ** 2)
+    r, k = _edge_scales(cam)
     return math.sqrt(max(0.0, float(cov[0, 0] + cov[1, 1])) * k * k
                      + max(0.0, float(cov[2, 2])) * r * r)
 
+def _edge_scales(cam: Camera) -> tuple[float, float]:
+    """(r, k) at the frame's corner: its distance r from the centre (px), and k, the px a
+    radian of pointing moves it, f·(1 + (r/f)²)."""
+    f = 1.0 / cam.pixel_scale_rad
+    r = 0.5 * math.hypot(cam.width, cam.height)
+    return r, f * (1.0 + (r / f) ** 2)
 
 
 def _norm3(v: NDArray) -> float:

@@ -172,3 +172,49 @@ def test_misaligned_camera_biases_the_estimate_by_the_misalignment() -> None:
     st = run.estimates["adfusion_st"]
     ok = st["valid"] & (run.t >= 3.0)
     assert np.degrees(rot.angle_between(run.q_true[ok], st["q"][ok])).max() < 0.01
+
+
+def _rate_error_vs_gyro_noise(cfg, seed: int, window_s: float = 60.0,
+                              duration_s: float = 600.0, fix_sigma_rad: float = 1e-5) -> float:
+    """The filter of ``cfg`` on a still body: gyro (``cfg``'s ARW and bias) at its rate and
+    attitude fixes at the camera's rate. RMS over ``window_s`` averages (after 150 s) of the
+    rate it hands the controller (gyro − estimated bias) against the true rate, ÷ the same
+    for the gyro's own noise."""
+    from adfusion import Estimator
+
+    rng = np.random.default_rng(seed)
+    bias = np.asarray(cfg.gyro_bias_rad_s)
+    dt = 1.0 / cfg.gyro_hz
+    est = Estimator(None, q_body_icrs0=rot.IDENTITY, arw_rad_sqrt_s=cfg.arw_rad_sqrt_s,
+                    rrw_rad_s_sqrt_s=cfg.filter_rrw_rad_s_sqrt_s)
+    est.add_fix(0.0, rot.IDENTITY, np.eye(3) * fix_sigma_rad**2)
+    every = round(cfg.gyro_hz / cfg.camera_hz * 2)  # fixes: 2 per this many gyro samples
+    out, noise = [], []
+    for k in range(1, round(duration_s * cfg.gyro_hz) + 1):
+        t = k * dt
+        n = rng.normal(0.0, cfg.arw_rad_sqrt_s / np.sqrt(dt), 3)
+        est.step_gyro(t, bias + n)
+        if k % every in (0, every // 2):
+            est.add_fix(t, rot.exp_map(rng.normal(0.0, fix_sigma_rad, 3)),
+                        np.eye(3) * fix_sigma_rad**2)
+        if t > 150.0:
+            out.append(bias + n - est.filter.bias_rad_s)
+            noise.append(n)
+    m = round(window_s * cfg.gyro_hz)
+
+    def windowed_rms(x):
+        x = np.asarray(x)[: len(x) // m * m]
+        return float(np.sqrt(np.mean(x.reshape(-1, m, 3).mean(axis=1) ** 2)))
+
+    return windowed_rms(out) / windowed_rms(noise)
+
+
+def test_the_rate_handed_to_the_controller_beats_the_bare_gyro_at_the_loops_time_scale():
+    # mrpFeedback damps on gyro − estimated bias, and leo's loop responds over ~30–200 s
+    # (natural period ~200 s): there the 4 Hz fixes know the rate far better than the gyro's
+    # white noise, and a bias walk that lets the estimate follow it hands the controller a
+    # better rate. With the filter's walk at 1e-8 the estimate did not follow (ratio ≈ 1.0)
+    # and the loop pointed at 1.25–1.31× the truth-fed loop on seeds 0, 4, 5
+    cfg = scenario("leo")
+    ratios = [_rate_error_vs_gyro_noise(cfg, seed) for seed in range(4)]
+    assert np.mean(ratios) < 0.85, ratios
