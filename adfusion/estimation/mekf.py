@@ -73,6 +73,7 @@ from adfusion.estimation.common import (
     tangent_basis,
     tangent_residual,
 )
+from adfusion.estimation.mekf_kernels import covariance_step
 from adfusion.starid import rotations as rot
 
 __all__ = [
@@ -517,10 +518,7 @@ class MEKF(AttitudeFilter):
         self._relin = float(relinearize_tol)
         self._b: list[float] = self._b0.tolist()
         self._P: Array = self._P0.copy()
-        self._phi = np.eye(6)
         self._h = np.zeros((2, 6))
-        self._q_dt = math.nan  # Q is cached per step length: most callers use a fixed rate
-        self._Q = np.zeros((6, 6))
 
     @property
     def bias_rad_s(self) -> Array:
@@ -544,22 +542,7 @@ class MEKF(AttitudeFilter):
         tx, ty, tz = (wx - b[0]) * dt, (wy - b[1]) * dt, (wz - b[2]) * dt
         # body rates turn R_body_icrs by −θ on the left (Ṙ_body_icrs = −[ω]× R_body_icrs)
         self._q = rot.normalize_floats(rot.hamilton(rot.exp_map_floats(-tx, -ty, -tz), self._q))
-        phi = self._phi
-        phi[:3] = phi_rows(tx, ty, tz, dt)
-        if dt != self._q_dt:
-            # process_noise(dt, ...) in floats (its np.eye/zeros were most of a step's
-            # cost when dt jitters): the same expressions, so the same bits
-            sv2, su2 = self._sv**2, self._su**2
-            a, c, d = sv2 * dt + su2 * dt**3 / 3.0, su2 * dt**2 / 2.0, su2 * dt
-            q = np.zeros((6, 6))
-            q[0, 0] = q[1, 1] = q[2, 2] = a
-            q[0, 3] = q[1, 4] = q[2, 5] = q[3, 0] = q[4, 1] = q[5, 2] = c
-            q[3, 3] = q[4, 4] = q[5, 5] = d
-            self._Q = q
-            self._q_dt = dt
-        p = phi.dot(self._P).dot(phi.T)  # .dot: a third of the call overhead of @ here
-        p += self._Q
-        self._P = symmetrize(p)
+        self._P = covariance_step(self._P, dt, tx, ty, tz, self._sv**2, self._su**2)
 
     def _vector_update(
         self, bm: tuple[float, float, float], rr: tuple[float, float, float], sigma: float

@@ -198,6 +198,7 @@ class RateMEKF(MEKF):
             raise ValueError(f"omega0_rad_s must be a finite 3-vector, got {omega0_rad_s}")
         self._w: list[float] = w.tolist()
         self._b = [0.0, 0.0, 0.0]  # unused: no gyro, no bias
+        self._phi = np.eye(6)  # its own transition, rows filled per step
 
     # --- state ---------------------------------------------------------------------------
 
