@@ -139,8 +139,8 @@ def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
     real = type(solver)._match
     sels: list[frozenset] = []
 
-    def spy(self, pattern):
-        out = real(self, pattern)
+    def spy(self, pattern, work_budget=None):
+        out = real(self, pattern, work_budget)
         calls.append((sels[-1], len(out)))
         return out
 
