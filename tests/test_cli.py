@@ -119,3 +119,56 @@ def test_a_wrong_field_of_view_gets_a_hint(shared_dir, capsys):
     assert "hint:" in out and "--fov LO:HI" in out
     assert main(["solve", str(frame), "--fov", "11.4", "--fov-error", "0.5"]) == 0
     assert "hint:" not in capsys.readouterr().out
+
+
+def test_outputs_never_overwrite_inputs_or_each_other(capsys, tmp_path):
+    """`solve F --overlay F` replaced the input frame with its overlay, and `export LOG
+    --csv LOG` turned the replayed log into a CSV (new-user trial): an output that names an
+    input, or another output, is exit 2 with a one-line message, and nothing is written."""
+    import cv2
+    import numpy as np
+
+    img = tmp_path / "f.png"
+    cv2.imwrite(str(img), (np.arange(48 * 64).reshape(48, 64) % 251).astype(np.uint8))
+    before = img.read_bytes()
+    flight, log = tmp_path / "flight.mcap", tmp_path / "replay.mcap"
+    assert main(["simulate", "oedipus", "-o", str(flight), "--duration", "1",
+                 "--no-render"]) == 0
+    assert main(["replay", str(flight), "-o", str(log)]) == 0
+    log_bytes = log.read_bytes()
+    aem = tmp_path / "a.aem"
+    for argv, why in (
+            (["solve", str(img), "--fov", "10", "--overlay", str(img)], "is the input"),
+            (["solve", str(img), "--fov", "10", "--overlay",
+              str(tmp_path / "." / "f.png")], "is the input"),
+            (["export", str(log), "--csv", str(log)], "is the input"),
+            (["export", str(log), "--aem", str(log)], "is the input"),
+            (["export", str(log), "--aem", str(aem), "--csv", str(aem)], "both name")):
+        capsys.readouterr()
+        assert main(argv) == 2, argv
+        err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+        assert len(err) == 1 and why in err[0], (argv, err)
+    assert img.read_bytes() == before and log.read_bytes() == log_bytes
+    assert not aem.exists()
+
+
+def test_a_rough_field_of_view_names_its_tolerance(shared_dir, capsys, tmp_path):
+    """An 11.4° lens given as `--fov 12` solved 0 of 8 real frames with no hint in the
+    batch summary, and `replay` of the folder ended "identified 0 (0.0 %)" with exit 0
+    (new-user trial): both now say the tolerance flag, and the replay exits 1."""
+    src = shared_dir / "data" / "real-images"
+    frames = sorted(src.glob("*.tiff"))[:2]
+    assert main(["solve", *map(str, frames), "--fov", "12"]) == 1
+    out = capsys.readouterr().out
+    assert "2 of 2 frames had nothing near an identification" in out and "--fov-error" in out
+    assert main(["solve", str(frames[0]), "--fov", "12", "--fov-error", "1"]) == 0
+    capsys.readouterr()
+    times = tmp_path / "t.csv"
+    times.write_text("filename,t_s\n" + "".join(f"{f.name},{k}\n" for k, f in
+                                                enumerate(sorted(src.glob("*.tiff")))))
+    out_log = tmp_path / "o.mcap"
+    assert main(["replay", str(src), "-o", str(out_log), "--fov", "12",
+                 "--timestamps", str(times)]) == 1
+    err = capsys.readouterr().err
+    assert "no frame of 8 was identified" in err and "--fov-error" in err
+    assert out_log.exists()  # the output is written either way
