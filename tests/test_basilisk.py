@@ -147,6 +147,22 @@ def test_acs_command_writes_log_and_report(tmp_path) -> None:
     assert main(["acs", "nowhere", "-o", str(out)]) == 2
 
 
+def test_acs_json_is_the_only_thing_on_stdout(tmp_path, capfd) -> None:
+    # Basilisk's C++ start-up notes (MSG_ERROR, BSK_WARNING) went to the process's stdout
+    # ahead of the JSON (new-user trial: `acs leo --json` was not JSON); progress too
+    import ctypes
+    import json
+
+    from adfusion.app.cli import main
+
+    assert main(["acs", "leo", "-o", str(tmp_path / "j.mcap"), "--duration", "2",
+                 "--json"]) == 0
+    ctypes.CDLL(None).fflush(None)  # whatever C code left in its stdout buffer
+    cap = capfd.readouterr()
+    assert json.loads(cap.out)["camera"]["frames"] > 0
+    assert "loop 1 of 4" in cap.err
+
+
 def test_full_images_log_replays(tmp_path) -> None:
     path = tmp_path / "images.mcap"
     with LogWriter(path) as log:

@@ -19,7 +19,7 @@ import math
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import NoReturn
 
 from adfusion.app.errors import UsageError
@@ -1102,6 +1102,26 @@ def _run_bench(module, args: argparse.Namespace) -> int:
     return 0
 
 
+@contextlib.contextmanager
+def _c_stdout_to_stderr() -> Iterator[None]:
+    """File descriptor 1 points at stderr for the block (what C and C++ code print there
+    too), then back."""
+    import ctypes
+
+    libc = ctypes.CDLL(None)
+    sys.stdout.flush()
+    libc.fflush(None)
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        libc.fflush(None)
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def cmd_acs(args: argparse.Namespace) -> int:
     try:
         from adfusion.basilisk.acs import run_acs
@@ -1117,8 +1137,16 @@ def cmd_acs(args: argparse.Namespace) -> int:
         raise UsageError(f"unknown scenario {args.scenario!r}; choose one of "
                          f"{sorted(SCENARIOS)}")
     t0 = time.perf_counter()
-    rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
-                  images=args.images)
+
+    def progress(line: str) -> None:
+        print(f"{line} …", file=sys.stderr, flush=True)
+
+    # Basilisk's C++ layer prints its start-up notes (a message read before its first write,
+    # a recorder on a message not yet written) on the process's stdout: they go to stderr,
+    # so that stdout holds the report, and --json valid JSON
+    with _c_stdout_to_stderr():
+        rep = run_acs(args.scenario, args.output, seed=args.seed, duration_s=args.duration,
+                      images=args.images, progress=progress)
     print(json.dumps(rep.as_dict(), indent=2) if args.json else rep.table())
     print(f"→ {args.output} and its report ({time.perf_counter() - t0:.1f} s)", file=sys.stderr)
     return 0

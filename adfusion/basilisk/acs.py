@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -257,10 +258,10 @@ def sky_and_solver(cfg: Any) -> tuple[Catalog, Catalog, Solver]:
 def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
             duration_s: float | None = None, loops: tuple[str, ...] = LOOPS,
             images: str = "preview", settle_s: float = 150.0,
-            plot: bool = True) -> AcsReport:
+            plot: bool = True, progress: Callable[[str], None] | None = None) -> AcsReport:
     """Run scenario ``name`` with the loop closed on each of ``loops``; with ``out_path``
     write the adfusion run's MCAP there and the report beside it (``.report.md``,
-    ``.report.json``, ``.png``)."""
+    ``.report.json``, ``.png``). ``progress`` is called with a line as each loop starts."""
     overrides = {} if duration_s is None else {"duration_s": float(duration_s)}
     cfg = scenario(name, **overrides)
     walls: dict[str, float] = {}
@@ -268,9 +269,11 @@ def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
     sky, cat, solver = sky_and_solver(cfg)
     walls["setup"] = time.perf_counter() - t0
     runs: dict[str, LoopRun] = {}
-    for loop in ("adfusion", "truth", "ukf", "adfusion_st"):
-        if loop not in loops:
-            continue
+    order = [loop for loop in ("adfusion", "truth", "ukf", "adfusion_st") if loop in loops]
+    for loop in order:
+        if progress is not None:
+            progress(f"{name}: loop {len(runs) + 1} of {len(order)}, closed on {loop} "
+                     f"({cfg.duration_s:g} s simulated)")
         t1 = time.perf_counter()
         if loop == "adfusion" and out_path is not None:
             with LogWriter(out_path) as log:
