@@ -109,6 +109,10 @@ def test_cli_demo_and_report(tmp_path, capsys):
                     "residuals.png", "solve_time.png", "stars.png"]
     page = (tmp_path / "report" / "report.html").read_text()
     assert page.count("data:image/png;base64,") == 7
+    # the style sheet as a browser reads it: "}}" had turned the image rules into junk
+    # (new-user trial), so the plots overflowed the page
+    style = page.split("<style>", 1)[1].split("</style>", 1)[0]
+    assert "{{" not in style and "}}" not in style and "img{max-width:100%}" in style
     assert "attitude error" in (tmp_path / "report" / "summary.md").read_text()
     names = {m.topic for m in McapLogReader(tmp_path / "replay.mcap")}
     assert {"/camera/image", "/camera/annotations", "/starid/solution", "/estimate/state",

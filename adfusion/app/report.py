@@ -134,7 +134,7 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
     page.write_text(
         "<!DOCTYPE html><html><head><meta charset='utf-8'>"
         f"<title>adfusion report: {html.escape(name)}</title><style>body{{font-family:"
-        "sans-serif;max-width:1100px;margin:auto}} img{{max-width:100%}} figure{{margin:1em 0}}"
+        "sans-serif;max-width:1100px;margin:auto} img{max-width:100%} figure{margin:1em 0}"
         f"</style></head><body><h1>Replay report: {html.escape(name)}</h1><ul>"
         + "".join(f"<li>{html.escape(x)}</li>" for x in lines) + f"</ul>{figs}</body></html>")
     return [*files, md, page]
