@@ -125,6 +125,12 @@ def test_mcap_log_deterministic_and_replayable(tmp_path) -> None:
     assert {"/imu/gyro", "/mag", "/truth/state", "/camera/centroids", "/starid/solution",
             "/estimate/state", "/estimate/pose", "/camera/preview"} <= topics
     assert reader.camera_model() is not None
+    # each solution says how many stars were detected, as a replay's do (the report's
+    # "detected" line read 0 on every acs log: new-user trial)
+    sols = [m.payload for m in reader if m.topic == "/starid/solution"]
+    cents = [m.payload for m in McapLogReader(paths[0]) if m.topic == "/camera/centroids"]
+    assert [s["n_detections"] for s in sols] == [len(c["xy"]) for c in cents]
+    assert min(s["n_detections"] for s in sols) > 0
     # `adfusion replay` re-identifies the logged centroids
     from adfusion.app.pipeline import replay
 

@@ -143,6 +143,7 @@ class McapLogModule(sysModel.SysModel):
                                {"t": t, "xy": np.empty((0, 2)) if xy is None else xy})
         sol = rec.solution
         if sol is not None:
+            xy = rec.detections_xy
             cand = sol.candidates[0] if sol.candidates else None
             predicted = cand.predicted_xy if sol.ok and cand is not None else None
             log.write_json("/starid/solution", t, {
@@ -150,9 +151,10 @@ class McapLogModule(sysModel.SysModel):
                 "q_cam_icrs": sol.q_cam_icrs if sol.ok else None,
                 "matches": [list(m) for m in sol.matches],
                 "matching_counter": sol.matching_counter, "p_false": sol.p_false,
+                # no solve time: the log of a seed is the same bytes on every run
                 "cone_deg": rec.cone_deg, "time_ms": None, "fix_accepted": rec.fix_accepted,
+                "n_detections": 0 if xy is None else len(xy),
                 "truth_q_cam_icrs": fr.q_cam_icrs, "n_in_view": fr.n_in_view})
-            xy = rec.detections_xy
             if xy is not None:
                 ident = [(float(xy[d][0]), float(xy[d][1]), str(i))
                          for d, i in sol.matches if d < len(xy)]
