@@ -231,8 +231,13 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
              else _number(config, "mag_limit", 6.5, "config.", name))  # as adfusion solve
     catalog = Catalog.hipparcos(mag_limit=limit, epoch=epoch)
     sigma_px = _number(cam_cfg, "centroid_sigma_px", 0.5, "config.camera.", name)
+    if getattr(source, "has_images", True):
+        # stars we detect ourselves in whole frames are good to ~0.3–0.5 px, whatever the
+        # log says its own centroids were; a log of centroids (a centroid-only simulation,
+        # `adfusion acs`'s tracking windows at ~0.03 px) carries its own accuracy
+        sigma_px = max(sigma_px, 0.5)
     extra = {"fov_error_deg": options.fov_error_deg} if options.fov_error_deg else {}
-    solver = Solver(catalog, camera, centroid_sigma_px=max(sigma_px, 0.5), **extra)
+    solver = Solver(catalog, camera, centroid_sigma_px=sigma_px, **extra)
     solver.warm_up()  # its compiled search loads (or, once after an install, compiles) here
     ahead.camera = camera
     if options.sigma is not None:
@@ -261,7 +266,7 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
             cam_k = Camera.from_dict(models[k])
             q_k = np.asarray(config["heads"][k]["q_body_cam"], dtype=np.float64)
             solver_k = (solver if k == 0 and cam_k == camera else
-                        Solver(catalog, cam_k, centroid_sigma_px=max(sigma_px, 0.5), **extra))
+                        Solver(catalog, cam_k, centroid_sigma_px=sigma_px, **extra))
             r.heads.append(Head(k, cam_k, q_k, solver_k))
         first = r.heads[0]
         r.camera, r.camera_model, r.q_body_cam, r.solver = (first.camera, first.camera.to_dict(),
