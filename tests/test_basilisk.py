@@ -173,6 +173,15 @@ def test_acs_command_writes_log_and_report(tmp_path) -> None:
         assert f"| {loop} |" in report
     assert (tmp_path / "run.png").stat().st_size > 0
     assert main(["acs", "nowhere", "-o", str(out)]) == 2
+    # an acs run has no UTC start: export said "replay it again with --start-utc", though
+    # the log was never replayed (new-user trial); export takes the start itself
+    table = tmp_path / "run.csv"
+    assert main(["export", str(out), "--csv", str(table)]) == 1
+    assert main(["export", str(out), "--csv", str(table), "--start-utc",
+                 "2025-05-01T12:00:00Z"]) == 0
+    rows = table.read_text().splitlines()
+    n_states = sum(m.topic == "/estimate/state" for m in McapLogReader(out))
+    assert len(rows) == 1 + n_states and rows[1].startswith("2025-05-01T12:00:00")
 
 
 def test_acs_json_is_the_only_thing_on_stdout(tmp_path, capfd) -> None:

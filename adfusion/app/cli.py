@@ -351,6 +351,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                     "mode, stars")
     ex.add_argument("--smoothed", action="store_true", help="export /smoothed/state instead "
                     "of the filter's /estimate/state")
+    ex.add_argument("--start-utc", metavar="TIME", help="UTC of the log's t = 0 (ISO 8601), "
+                    "for a log that does not know it (an acs run, a replay without "
+                    "--start-utc)")
     ex.set_defaults(func=cmd_export)
 
     tp = sub.add_parser("topics", help="the log topics: schema, fields, units, frame")
@@ -1048,7 +1051,7 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise ValueError("nothing to export: give --aem FILE and/or --csv FILE")
     _outputs_apart([(flag, path) for flag, path in (("--aem", args.aem), ("--csv", args.csv))
                     if path], [args.log])
-    history = read_attitude_history(args.log, smoothed=args.smoothed)
+    history = read_attitude_history(args.log, smoothed=args.smoothed, start_utc=args.start_utc)
     if args.aem:
         write_aem(history, args.aem)
         print(f"AEM: {len(history.t)} attitudes → {args.aem}")

@@ -66,15 +66,27 @@ class AttitudeHistory:
         return t.strftime("%Y-%m-%dT%H:%M:%S.%f")
 
 
-def read_attitude_history(path: str | os.PathLike[str], *,
-                          smoothed: bool = False) -> AttitudeHistory:
-    """The filter's (or with ``smoothed=True`` the smoother's) attitude history of a log."""
+def read_attitude_history(path: str | os.PathLike[str], *, smoothed: bool = False,
+                          start_utc: str | None = None) -> AttitudeHistory:
+    """The filter's (or with ``smoothed=True`` the smoother's) attitude history of a log.
+    ``start_utc`` (ISO 8601 UTC) is the UTC of the log's t = 0, for a log that does not
+    know it (an ``adfusion acs`` run, a replay without ``--start-utc``); a log that does
+    keeps its own, and a different one is an error."""
     reader = McapLogReader(path)
     state = topics.SMOOTHED_STATE if smoothed else topics.ESTIMATE_STATE
     start = reader.start_utc or reader.metadata.get("config", {}).get("start_utc")
+    if start_utc is not None:
+        try:
+            given = utc_ns(start_utc)
+        except (TypeError, ValueError) as exc:
+            raise UsageError(f"--start-utc {start_utc!r}: {exc}") from None
+        if start is not None and utc_ns(start) != given:
+            raise UsageError(f"{path}: the log starts at {start} UTC; --start-utc "
+                             f"{start_utc} is only for a log that does not know its start")
+        start = start_utc
     if start is None:
-        raise ValueError(f"{path}: the log does not know its UTC start time: replay it again "
-                         "with --start-utc TIME")
+        raise ValueError(f"{path}: the log does not know its UTC start time: give it with "
+                         "--start-utc TIME (the UTC of the log's t = 0)")
     t, q, var, modes, stars = [], [], [], {}, {}
     for m in reader:
         if m.topic == state:
