@@ -239,6 +239,9 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     extra = {"fov_error_deg": options.fov_error_deg} if options.fov_error_deg else {}
     solver = Solver(catalog, camera, centroid_sigma_px=sigma_px, **extra)
     solver.warm_up()  # its compiled search loads (or, once after an install, compiles) here
+    # and the tracking path: the first tracked frame's solve time was the kernels' loading
+    # (3.6 s in a newcomer's demo summary, as that frame's identification time)
+    solver.warm_up_tracking()
     ahead.camera = camera
     if options.sigma is not None:
         ahead.detect_kwargs = {"sigma": float(options.sigma)}
