@@ -88,6 +88,11 @@ class _Log:
         self.omega = (np.array([p["omega"] for p in est], float)
                       if all("omega" in p for p in est) else None)
         self.nis = np.array([np.nan if p.get("nis") is None else p["nis"] for p in est])
+        # fixes that restarted the filter (no rate between frames, or a gate that kept
+        # rejecting): their NIS is that of the prediction they replaced, not a test of it
+        self.restarted = np.array([any("re-initialised" in str(r.get("reason", ""))
+                                       if isinstance(r, dict) else "re-initialised" in str(r)
+                                       for r in p.get("rejected") or []) for p in est], bool)
         self.sm = sm
         self.truth_t = np.array([p["t"] for p in truth], dtype=float)
         self.truth_q = np.array([p["q_body_icrs"] for p in truth], dtype=float).reshape(-1, 4)
@@ -241,8 +246,14 @@ def _nis(log: _Log, out: Path, lines: list[str]) -> Path:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(10, 3.5))
-    ok = np.isfinite(log.nis)
+    ok = np.isfinite(log.nis) & ~log.restarted
     t, v = log.t[ok], log.nis[ok]
+    n_restarts = int(np.sum(log.restarted))
+    if n_restarts:
+        lines.append(f"the filter restarted from a lost-in-space fix at {n_restarts} of "
+                     f"{len(log.t)} estimates (no rate between frames, or fixes its gate kept "
+                     "rejecting): rates and NIS across a restart mean nothing, and those "
+                     "fixes are left out of the NIS")
     if len(v):
         ax.semilogy(t, np.maximum(v, 1e-4), ".", ms=3, color="tab:blue", label="NIS per fix")
         lo, hi = _CHI2_3
