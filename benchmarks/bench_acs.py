@@ -227,6 +227,7 @@ def _frame_loop_cost(run, n: int = 200) -> list[list[float]]:
 
 def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s: float = 150.0,
         cost_seed: int | None = 0, verbose: bool = True) -> dict[str, Any]:
+    load_before = os.getloadavg()[0]
     cfg = scenario(name, duration_s=duration_s)
     sky, cat, solver = sky_and_solver(cfg)
     per_seed, ens, cost = [], {k: [] for k in ESTIMATORS}, None
@@ -310,7 +311,10 @@ def run(name: str = "leo", seeds: int = 10, duration_s: float = 600.0, settle_s:
                    "wrong": int(sum(s["camera"]["wrong"] for s in per_seed))},
         "cost": cost, "per_seed": per_seed,
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "python": platform.python_version()},
+                    "python": platform.python_version(),
+                    "load_average_1min_before": load_before,
+                    "load_average_1min_after": os.getloadavg()[0],
+                    "when": time.strftime("%Y-%m-%d", time.gmtime())},
     }
 
 

@@ -287,7 +287,10 @@ def acs_section(doc: dict[str, Any], command: str) -> str:
     for k, v in doc["cost"].items():
         lines.append(f"| {k} | {v['median_us']:.1f} | {v['p95_us']:.1f} |")
     m = doc["machine"]
-    lines += ["", f"(Python {m['python']}, {m['cpus']} cores shared with other work.)"]
+    load = (f"load average {m['load_average_1min_before']:.1f} before and "
+            f"{m['load_average_1min_after']:.1f} after the run, {m['when']}"
+            if "load_average_1min_before" in m else "the load was not recorded")
+    lines += ["", f"(Python {m['python']}, {m['cpus']} cores; {load}.)"]
     return "\n".join(lines)
 
 

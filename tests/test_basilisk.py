@@ -200,6 +200,20 @@ def test_acs_json_is_the_only_thing_on_stdout(tmp_path, capfd) -> None:
     assert "loop 1 of 4" in cap.err
 
 
+def test_acs_runs_with_stdout_closed(tmp_path) -> None:
+    # the redirect of fd 1 around Basilisk must not be what fails when there is no stdout
+    # (a daemon, `>&-`): it raised on sys.stdout None (review)
+    import subprocess
+    import sys
+
+    out = tmp_path / "c.mcap"
+    cmd = (f"{sys.executable} -P -m adfusion acs leo --duration 1 -o {out} --json >&-")
+    r = subprocess.run(["bash", "-c", cmd], capture_output=False, stderr=subprocess.PIPE,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert out.stat().st_size > 0
+
+
 def test_full_images_log_replays(tmp_path) -> None:
     path = tmp_path / "images.mcap"
     with LogWriter(path) as log:

@@ -137,7 +137,11 @@ def test_outputs_never_overwrite_inputs_or_each_other(capsys, tmp_path):
     assert main(["replay", str(flight), "-o", str(log)]) == 0
     log_bytes = log.read_bytes()
     aem = tmp_path / "a.aem"
+    imu = tmp_path / "imu.csv"
+    imu.write_text("t_s,gyro_x,gyro_y,gyro_z\n0.0,0,0,0\n")
+    kept = {imu: imu.read_bytes()}
     for argv, why in (
+            (["replay", str(flight), "-o", str(imu), "--imu", str(imu)], "is the input"),
             (["solve", str(img), "--fov", "10", "--overlay", str(img)], "is the input"),
             (["solve", str(img), "--fov", "10", "--overlay",
               str(tmp_path / "." / "f.png")], "is the input"),
@@ -149,6 +153,7 @@ def test_outputs_never_overwrite_inputs_or_each_other(capsys, tmp_path):
         err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
         assert len(err) == 1 and why in err[0], (argv, err)
     assert img.read_bytes() == before and log.read_bytes() == log_bytes
+    assert all(p.read_bytes() == b for p, b in kept.items())
     assert not aem.exists()
 
 

@@ -266,6 +266,9 @@ def test_foreign_configuration_and_camera_are_messages(sim, tmp_path):
         ("no_k", "same", {"width": 512, "height": 480, "D": []}, "camera model.*unusable"),
         ("gyro_str", {**cfg, "gyro": {"arw_rad_sqrt_s": "low"}}, "same", "arw_rad_sqrt_s"),
         ("q_str", {**cfg, "q_body_cam": "identity"}, "same", "q_body_cam"),
+        # a log's own centroid σ is used as it stands now (no 0.5 px floor for centroids)
+        ("sigma0", {**cfg, "camera": {**cfg["camera"], "centroid_sigma_px": 0.0}}, "same",
+         "config.camera.centroid_sigma_px = 0.0 must be > 0"),
     ]:
         bad = copy_log(sim, tmp_path / f"{name}.mcap", config=config, camera=camera)
         with pytest.raises(ValueError, match=match):

@@ -426,3 +426,20 @@ def test_frames_without_a_fix_are_counted_by_reason(shared_dir, tmp_path, capsys
     summary = json.loads(capsys.readouterr().out)
     assert summary["identified"] == 2 and summary["frames"] == 3
     assert sum(summary["not_identified"].values()) == 1, summary["not_identified"]
+
+
+def test_a_log_has_images_when_any_camera_has_them(tmp_path):
+    # the floor of the centroid σ (and the output's compression) follow has_images, which
+    # looked only at /camera/image: a log of several cameras with images on /camera1/image
+    # alone counted as centroids (review)
+    from adfusion.logs import LogWriter
+
+    from adfusion.app.replay.sources import McapInput
+
+    img = np.zeros((8, 8), np.uint8)
+    with LogWriter(tmp_path / "heads.mcap") as log:
+        log.write_image(0.0, img, "camera1", topic=topics.camera_topic(1))
+    with LogWriter(tmp_path / "centroids.mcap") as log:
+        log.write_json(topics.CAMERA_CENTROIDS, 0.0, {"t": 0.0, "xy": [[1.0, 2.0]]})
+    assert McapInput(tmp_path / "heads.mcap").has_images
+    assert not McapInput(tmp_path / "centroids.mcap").has_images

@@ -86,10 +86,11 @@ def _output_file(path: str, flag: str = "-o") -> None:
 
 
 def _same_path(a: str, b: str) -> bool:
-    """Whether two names are one file (an existing one through links, else by name)."""
+    """Whether two names are one file (an existing one through links, else by name, as
+    the file system compares names: ``normcase`` folds case where it is insensitive)."""
     if os.path.exists(a) and os.path.exists(b):
         return os.path.samefile(a, b)
-    return os.path.realpath(a) == os.path.realpath(b)
+    return os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b))
 
 
 def _outputs_apart(outputs: list[tuple[str, str]], inputs: list[str]) -> None:
@@ -636,7 +637,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UsageError("--overlay takes one image (use --out-dir for a batch)")
     if args.overlay:
         _output_file(args.overlay, "--overlay")
-        _outputs_apart([("--overlay", args.overlay)], paths)
+        _outputs_apart([("--overlay", args.overlay)], paths)  # (it must name an image)
     out_dir = None
     if args.out_dir or args.wcs or args.corr:
         from pathlib import Path
@@ -1007,6 +1008,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise UsageError(f"--start-utc: {exc}") from None
     _output_file(args.output)
+    # the input itself is checked by the replay (an output that is its input, or whose
+    # temporary name is); here the files that come with it
+    _outputs_apart([("-o", args.output)], [p for p in (args.imu, args.timestamps, args.config,
+                                                        getattr(args, "camera", None)) if p])
     config = None
     if args.config:
         _input_file(args.config, "JSON")
@@ -1039,7 +1044,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
     print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
     none_identified = s.frames > 0 and s.identified == 0
     if none_identified:  # a replay with no fix at all is a failure, not a quiet success
-        print(f"no frame of {s.frames} was identified: {_FOV_TOLERANCE}", file=sys.stderr)
+        why = (_FOV_TOLERANCE if args.fov is not None else
+               "check the camera model (--camera), the mounting and the detection threshold "
+               "(--sigma); `adfusion solve FRAME` on one frame says what it found")
+        print(f"no frame of {s.frames} was identified: {why}", file=sys.stderr)
     # the output is written either way; 1 says it carries problems (listed above)
     return 1 if s.smoother.get("error") or s.problems or none_identified else 0
 
@@ -1108,19 +1116,26 @@ def _run_bench(module, args: argparse.Namespace) -> int:
 @contextlib.contextmanager
 def _c_stdout_to_stderr() -> Iterator[None]:
     """File descriptor 1 points at stderr for the block (what C and C++ code print there
-    too), then back."""
-    import ctypes
+    too), then back. Where that cannot be done (no stdout, a closed descriptor, no C
+    library to flush) the block runs as it is."""
+    try:
+        import ctypes
 
-    libc = ctypes.CDLL(None)
-    sys.stdout.flush()
-    libc.fflush(None)
-    saved = os.dup(1)
+        fflush = ctypes.CDLL(None).fflush
+        if sys.stdout is not None:
+            sys.stdout.flush()
+        fflush(None)
+        saved = os.dup(1)
+    except (OSError, TypeError, AttributeError, ValueError):
+        yield
+        return
     try:
         os.dup2(2, 1)
         yield
     finally:
-        sys.stdout.flush()
-        libc.fflush(None)
+        if sys.stdout is not None:
+            sys.stdout.flush()
+        fflush(None)
         os.dup2(saved, 1)
         os.close(saved)
 

@@ -70,6 +70,7 @@ from adfusion.basilisk.camera import CameraFrame, earth_limb_angle_rad, is_flood
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
 from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.estimation.estimator import Estimator, StepRecord
+from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
 from adfusion.starid import rotations as rot
 from adfusion.starid.detect_roi import TrackingWindows
 
@@ -140,6 +141,7 @@ class AdfusionNav(sysModel.SysModel):
     # --- Basilisk interface ------------------------------------------------------------
 
     def Reset(self, CurrentSimNanos: int) -> None:
+        warm_up_filter()  # the compiled propagation loads here, not in the first gyro call
         self.est = self._estimator(self._q0, self._sigma0)
         self._seen = {"imu": -1, "st": -1, "tam": -1, "frame": -1}
         self._gyro_body: list[float] | None = None

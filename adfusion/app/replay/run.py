@@ -231,6 +231,9 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
              else _number(config, "mag_limit", 6.5, "config.", name))  # as adfusion solve
     catalog = Catalog.hipparcos(mag_limit=limit, epoch=epoch)
     sigma_px = _number(cam_cfg, "centroid_sigma_px", 0.5, "config.camera.", name)
+    if not sigma_px > 0:
+        raise ValueError(f"{name}: config.camera.centroid_sigma_px = {sigma_px!r} must be > 0 "
+                         "(the centroids' 1-σ error in pixels)")
     if getattr(source, "has_images", True):
         # stars we detect ourselves in whole frames are good to ~0.3–0.5 px, whatever the
         # log says its own centroids were; a log of centroids (a centroid-only simulation,
@@ -242,6 +245,9 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     # and the tracking path: the first tracked frame's solve time was the kernels' loading
     # (3.6 s in a newcomer's demo summary, as that frame's identification time)
     solver.warm_up_tracking()
+    from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
+
+    warm_up_filter()  # and the filter's compiled propagation
     ahead.camera = camera
     if options.sigma is not None:
         ahead.detect_kwargs = {"sigma": float(options.sigma)}

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import heapq
 import os
+import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Protocol
@@ -75,7 +76,9 @@ class McapInput:
         self.name = str(path)
         self.reader = McapLogReader(path)
         self.config: dict[str, Any] = self.reader.metadata.get("config", {})
-        self.has_images = any(c.topic == topics.CAMERA_IMAGE
+        # images of any camera: /camera/image, /camera1/image, … (topics.camera_topic); the
+        # compression choice and the centroid σ's floor follow it
+        self.has_images = any(re.fullmatch(r"/camera\d*/image", c.topic) is not None
                               for c in self.reader.channels.values())
         self.start_utc = self.reader.start_utc
         self.has_gyro = any(c.topic == topics.GYRO for c in self.reader.channels.values())
