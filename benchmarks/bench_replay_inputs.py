@@ -58,18 +58,15 @@ def _inputs(d: Path, duration_s: float):
     frames = [(m.t_s, m.payload) for m in McapLogReader(sim) if m.topic == topics.CAMERA_IMAGE]
     times = ["filename,t_s"]
     h, w = frames[0][1].shape
-    video = cv2.VideoWriter(str(d / "flight.mkv"), cv2.VideoWriter_fourcc(*"FFV1"),
-                            float(scenario.config["camera"]["fps"]), (w, h), isColor=False)
     for k, (t, img) in enumerate(frames):
         cv2.imwrite(str(folder / f"f{k:05d}.png"), img)
         times.append(f"f{k:05d}.png,{t!r}")
-        video.write(img)
-    video.release()
-    mjpg = cv2.VideoWriter(str(d / "flight.avi"), cv2.VideoWriter_fourcc(*"MJPG"),
-                           float(scenario.config["camera"]["fps"]), (w, h), isColor=False)
-    for _, img in frames:
-        mjpg.write(img)
-    mjpg.release()
+    for name, codec in (("flight.mkv", "FFV1"), ("flight.avi", "MJPG")):
+        video = cv2.VideoWriter(str(d / name), cv2.VideoWriter_fourcc(*codec),
+                                float(scenario.config["camera"]["fps"]), (w, h), isColor=False)
+        for _, img in frames:
+            video.write(img)
+        video.release()
     (d / "times.csv").write_text("\n".join(times) + "\n")
     imu = ["t_s,gyro_x,gyro_y,gyro_z"]
     imu += [f"{m.t_s!r}," + ",".join(repr(v) for v in m.payload["omega"])

@@ -428,12 +428,11 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             xy8 = np.ascontiguousarray(pxy[:8])
             sol, _ = self._solve_at(xy8, [self.camera], _WARM_UP_PATTERNS, _WARM_UP_WORK)
             solved = self._refine(sol, xy8).ok
-        else:
-            solved = self.solve(pxy[:8]).ok
-        if self.method == "nstar":  # every detection count's pattern lists (~0.1 s)
-            for n_det in range(3, self.max_detections + 1):
+            for n_det in range(3, self.max_detections + 1):  # every count's patterns (~0.1 s)
                 self._pattern_list(n_det, False)  # Renken's, searched first
                 self._pattern_list(n_det, True)
+        else:
+            solved = self.solve(pxy[:8]).ok
         b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
         table = PairWindows.of(b_all, self.tolerance_rad, 0.0)
         self._quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)

@@ -428,6 +428,7 @@ def corner_sigma_px(cov: NDArray, cam: Camera) -> float:
     return math.sqrt(max(0.0, float(cov[0, 0] + cov[1, 1])) * k * k
                      + max(0.0, float(cov[2, 2])) * r * r)
 
+
 def _edge_scales(cam: Camera) -> tuple[float, float]:
     """(r, k) at the frame's corner: its distance r from the centre (px), and k, the px a
     radian of pointing moves it, f·(1 + (r/f)²)."""

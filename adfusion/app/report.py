@@ -90,9 +90,9 @@ class _Log:
         self.nis = np.array([np.nan if p.get("nis") is None else p["nis"] for p in est])
         # fixes that restarted the filter (no rate between frames, or a gate that kept
         # rejecting): their NIS is that of the prediction they replaced, not a test of it
-        self.restarted = np.array([any("re-initialised" in str(r.get("reason", ""))
-                                       if isinstance(r, dict) else "re-initialised" in str(r)
-                                       for r in p.get("rejected") or []) for p in est], bool)
+        # (a replay's entries are {"input", "reason"} objects, an acs log's [input, reason])
+        self.restarted = np.array([any("re-initialised" in str(r) for r in p.get("rejected")
+                                       or []) for p in est], bool)
         self.sm = sm
         self.truth_t = np.array([p["t"] for p in truth], dtype=float)
         self.truth_q = np.array([p["q_body_icrs"] for p in truth], dtype=float).reshape(-1, 4)

@@ -40,6 +40,7 @@ from adfusion.app.replay.stages import (
     TruthStage,
 )
 from adfusion.estimation.estimator import Estimator
+from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
 from adfusion.logs import topics
 from adfusion.starid import rotations as rot
 from adfusion.starid.camera import Camera
@@ -245,8 +246,6 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
     # and the tracking path: the first tracked frame's solve time was the kernels' loading
     # (3.6 s in a newcomer's demo summary, as that frame's identification time)
     solver.warm_up_tracking()
-    from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
-
     warm_up_filter()  # and the filter's compiled propagation
     ahead.camera = camera
     if options.sigma is not None:
