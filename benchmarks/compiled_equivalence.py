@@ -1,13 +1,25 @@
-"""The compiled final refit (starid.kernels.refine_pinhole) against the Python one
-(starid.refine.Refinement._refine) on the `adfusion bench starid` frames.
+"""The compiled lost-in-space frame (starid.frame_kernels.solve_frame: search,
+verification and final refit in one call) against the Python code on the `adfusion bench
+starid` frames.
 
-Every frame is solved twice by one solver — compiled refit, then the Python code — and the
-solutions compared (:func:`differences`): ok, reason, path, patterns tried, matches,
+Every frame is solved twice by one solver — in one compiled call, then with the reference
+(``--reference python``: the compiled search with the verification and the refit in Python,
+starid.verify and starid.refine; ``--reference pieces``: the compiled search, verification
+and refit called one by one from Python, as before solve_frame) — and the solutions
+compared (:func:`differences`): ok, reason, path, patterns tried, matches,
 matching counter, note and p_false exactly; the attitude, residuals, covariance and noise
 estimate to rounding (the compiled Wahba fit uses a Jacobi SVD, not LAPACK's). Prints
 JSON; exit 1 on a difference.
 
     python -P benchmarks/compiled_equivalence.py [--frames 1000] [--conditions clean,...]
+        [--reference python|pieces]
+    python -P benchmarks/compiled_equivalence.py --record FILE.json   # solutions, any version
+    python -P benchmarks/compiled_equivalence.py --against FILE.json  # this code against them
+
+``--record`` writes each frame's solution (the discrete fields and p_false) so that another
+version of the code — the one before a change — can be compared with this one on the same
+frames: ``--against`` solves them again and reports every frame whose discrete fields differ
+and the largest relative p_false difference.
 """
 
 from __future__ import annotations
@@ -61,7 +73,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--conditions",
                    default="clean,false3,false8,drop30_false3,sparse45,sigma1,sigma2")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--reference", choices=("python", "pieces"), default="python",
+                   help="what the one-call path is compared with (default python)")
+    p.add_argument("--record", metavar="FILE", help="write the solutions to FILE (JSON)")
+    p.add_argument("--against", metavar="FILE",
+                   help="compare this code's solutions with a --record FILE")
     args = p.parse_args(argv)
+    if args.record or args.against:
+        return record_or_compare(args)
     from adfusion.bench import starid as bench
 
     report, bad = {}, 0
@@ -75,9 +94,12 @@ def main(argv: list[str] | None = None) -> int:
         first = None
         for i in range(args.frames):
             xy = bench.make_frame(cat, cam, cond, args.seed, i).xy
-            solver._compiled_verify = solver._compiled_refine = True
+            solver._compiled_verify = solver._compiled_refine = solver._frame_kernel = True
             a = solver.solve(xy)
-            solver._compiled_verify = solver._compiled_refine = False
+            if args.reference == "python":
+                solver._compiled_verify = solver._compiled_refine = False
+            else:
+                solver._frame_kernel = False
             b = solver.solve(xy)
             d = differences(a, b)
             n_ok += a.ok
@@ -87,7 +109,61 @@ def main(argv: list[str] | None = None) -> int:
         report[name] = {"frames": args.frames, "identified": n_ok, "different": n_diff,
                         "first_difference": first}
         bad += n_diff
-    print(json.dumps({"conditions": report, "wall_s": round(time.time() - t0, 1)}, indent=2))
+    solver._compiled_verify = solver._compiled_refine = solver._frame_kernel = True
+    print(json.dumps({"reference": args.reference, "conditions": report,
+                      "wall_s": round(time.time() - t0, 1)}, indent=2))
+    return 1 if bad else 0
+
+
+def summary(sol) -> dict:
+    """A solution's discrete fields and p_false (its own and its candidates'), as JSON."""
+    return {"ok": bool(sol.ok), "reason": sol.reason, "path": sol.path,
+            "patterns_tried": int(sol.patterns_tried),
+            "matching_counter": int(sol.matching_counter), "note": sol.note,
+            "matches": [list(map(int, m)) for m in sol.matches],
+            "candidates": [[list(map(int, m)) for m in c.matches] for c in sol.candidates],
+            "p_false": [sol.p_false] + [float(c.p_false) for c in sol.candidates]}
+
+
+def record_or_compare(args) -> int:
+    """``--record`` / ``--against``: see the module's docstring."""
+    from adfusion.bench import starid as bench
+
+    t0 = time.time()
+    old = json.load(open(args.against))["conditions"] if args.against else {}
+    out, report, bad = {}, {}, 0
+    for name in args.conditions.split(","):
+        cond = bench.CONDITIONS[name].resolved(0.1, 6.0)
+        cat = bench.load_catalog(cond.mag_limit, 2025.0)
+        cam = bench.camera_for(cond, 1024, 768, 15.0)
+        solver = bench.solver_for(cond.mag_limit, float(cond.sigma_px or 0.0), cam)
+        sols = [summary(solver.solve(bench.make_frame(cat, cam, cond, args.seed, i).xy))
+                for i in range(args.frames)]
+        out[name] = sols
+        if not args.against:
+            continue
+        n_diff, worst, first = 0, 0.0, None
+        for i, (a, b) in enumerate(zip(sols, old[name], strict=True)):
+            pa, pb = a.pop("p_false"), b.pop("p_false")
+            same = a == b and len(pa) == len(pb) and all(
+                (x is None) == (y is None) for x, y in zip(pa, pb, strict=True))
+            if not same:
+                n_diff += 1
+                first = first or {"frame": i, "this": a, "recorded": b}
+                continue
+            for x, y in zip(pa, pb, strict=True):
+                if x is not None and y:
+                    worst = max(worst, abs(x - y) / abs(y))
+        report[name] = {"frames": args.frames, "identified": sum(s["ok"] for s in sols),
+                        "different": n_diff, "p_false_max_rel_difference": worst,
+                        "first_difference": first}
+        bad += n_diff
+    if args.record:
+        with open(args.record, "w") as f:
+            json.dump({"conditions": out}, f)
+    if args.against:
+        print(json.dumps({"against": args.against, "conditions": report,
+                          "wall_s": round(time.time() - t0, 1)}, indent=2))
     return 1 if bad else 0
 
 

@@ -49,33 +49,84 @@ _SLACK = 1e-7
 
 
 def index_arrays(index) -> tuple:
-    """The arrays of a :class:`starid.index.PatternIndex` the kernels take, as one tuple."""
+    """The arrays of a :class:`starid.index.PatternIndex` the kernels take, as one tuple,
+    with the pair list's coarse table (:func:`pair_bins`) last."""
     return (index.vectors, index.pair_i, index.pair_j, index.pair_cos, index.nbr_ptr,
-            index.nbr_idx, index.nbr_cos, index.nbr_bin, float(index.max_sep_rad))
+            index.nbr_idx, index.nbr_cos, index.nbr_bin, float(index.max_sep_rad),
+            pair_bins(index.pair_cos, float(index.max_sep_rad)))
+
+
+#: bins of the pair list's coarse table: ~20 pairs a bin for Hipparcos to V 6 in a 15° field
+PAIR_BINS = 1 << 14
+
+
+def pair_bins(pair_cos: np.ndarray, max_sep_rad: float) -> np.ndarray:
+    """For the descending ``pair_cos``, the first row at an angle ≥ b·max_sep/B for every
+    bin b ≤ B (:data:`PAIR_BINS`): a window's rows are then searched among a few dozen
+    pairs instead of the whole list (~19 halvings, most of them cache misses, six times a
+    pattern). :func:`_pair_window` checks the bracket and falls back to the whole list, so
+    the rows are the same."""
+    edges = np.cos(np.linspace(0.0, max_sep_rad, PAIR_BINS + 1))
+    # first row with pair_cos < edge (descending list: searchsorted on the negation)
+    return np.searchsorted(-pair_cos, -edges, side="right").astype(np.int64)
 
 
 # --- matching (starid.nstar.match_indexed, level by level) ------------------------------
 
 
 @_jit
-def _pair_window(pair_cos, cmin, cmax):
-    """Rows of the descending ``pair_cos`` with cmin < c < cmax: [lo, hi)."""
-    a, b = 0, len(pair_cos)
-    while a < b:  # first row with c < cmax
+def _first_below(pair_cos, c, a, b):
+    """First row in [a, b) of the descending ``pair_cos`` with value < c (b if none)."""
+    while a < b:
         h = (a + b) // 2
-        if pair_cos[h] < cmax:
+        if pair_cos[h] < c:
             b = h
         else:
             a = h + 1
-    lo = a
-    b = len(pair_cos)
-    while a < b:  # first row with c <= cmin
+    return a
+
+
+@_jit
+def _first_at_most(pair_cos, c, a, b):
+    """First row in [a, b) of the descending ``pair_cos`` with value ≤ c (b if none)."""
+    while a < b:
         h = (a + b) // 2
-        if pair_cos[h] <= cmin:
+        if pair_cos[h] <= c:
             b = h
         else:
             a = h + 1
-    return lo, max(lo, a)
+    return a
+
+
+@_jit
+def _bracket(bins, max_sep, c, n_rows):
+    """Rows [a, b) of the pair list that hold the first row near cosine ``c`` by the coarse
+    table (a bin either side of c's for rounding); the caller checks the bracket."""
+    nb = len(bins) - 1
+    k = int(math.acos(min(max(c, -1.0), 1.0)) / (max_sep / nb))
+    a = bins[min(max(k - 1, 0), nb)]
+    b = bins[min(k + 2, nb)] if k + 2 <= nb else n_rows
+    return a, b
+
+
+@_jit
+def _pair_window(pair_cos, cmin, cmax, bins, max_sep):
+    """Rows of the descending ``pair_cos`` with cmin < c < cmax: [lo, hi) — each edge
+    searched within the coarse table's bracket (``bins``, :func:`pair_bins`) when the
+    bracket holds it, else in the whole list: the same rows either way."""
+    n = len(pair_cos)
+    a, b = _bracket(bins, max_sep, cmax, n)
+    if (a == 0 or pair_cos[a - 1] >= cmax) and (b == n or pair_cos[b] < cmax):
+        lo = _first_below(pair_cos, cmax, a, b)
+    else:
+        lo = _first_below(pair_cos, cmax, 0, n)
+    a, b = _bracket(bins, max_sep, cmin, n)
+    a = max(a, lo)
+    if (a == lo or pair_cos[a - 1] > cmin) and (b == n or pair_cos[b] <= cmin) and b >= a:
+        hi = _first_at_most(pair_cos, cmin, a, b)
+    else:
+        hi = _first_at_most(pair_cos, cmin, lo, n)
+    return lo, max(lo, hi)
 
 
 @_jit
@@ -124,10 +175,10 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     ``max_sep``, where the pair list holds no partners. The last level counts against
     ``max_partials`` too."""
     v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
-    nbr_idx, nbr_cos, nbr_bin, max_sep = ix[5], ix[6], ix[7], ix[8]
+    nbr_idx, nbr_cos, nbr_bin, max_sep, bins = ix[5], ix[6], ix[7], ix[8], ix[9]
     n = cmin.shape[0]
     n_cat = len(v)
-    lo, hi = _pair_window(pair_cos, cmin[0, 1], cmax[0, 1])
+    lo, hi = _pair_window(pair_cos, cmin[0, 1], cmax[0, 1], bins, max_sep)
     n_first = 2 * (hi - lo)
     empty = np.zeros((0, n), dtype=np.int64)
     if n == 2:
@@ -144,7 +195,7 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
         return empty, n_first, 2
     # window (0, 2) as linked lists per star in work[:N] (first entry, −1 = none),
     # built backwards so that each list runs in pair-list order
-    lo2, hi2 = _pair_window(pair_cos, cmin[0, 2], cmax[0, 2])
+    lo2, hi2 = _pair_window(pair_cos, cmin[0, 2], cmax[0, 2], bins, max_sep)
     nxt_e = np.empty(2 * (hi2 - lo2), dtype=np.int64)
     other = np.empty(2 * (hi2 - lo2), dtype=np.int64)
     e = 0
@@ -156,7 +207,8 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     # the pair list holds pairs closer than max_sep only: when window (1, 2) reaches
     # beyond, a partner there would be missed, so every first pair is extended
     masked = math.acos(min(max(cmin[1, 2], -1.0), 1.0)) < max_sep - 1e-9
-    lo3, hi3 = _pair_window(pair_cos, cmin[1, 2] - 1e-15, cmax[1, 2] + 1e-15)
+    lo3, hi3 = _pair_window(pair_cos, cmin[1, 2] - 1e-15, cmax[1, 2] + 1e-15, bins,
+                            max_sep)
     if not masked:
         lo3 = hi3
     for r in range(lo3, hi3):
@@ -515,31 +567,79 @@ def chirality(b, min_altitude):
 
 
 @_jit
-def pattern_of(pat, ang, tol, cmin, cmax, b_all):
-    """A pattern's detections in matching order (closest pair first) and its windows at
-    one focal guess: (sel, angles, tol, cos_min, cos_max, chirality)."""
-    sel = _closest_pair_first(ang, pat)
-    n = len(sel)
+def _window(b, i, j, tolerance_rad, rel_tol):
+    """The matching window of detections i, j (directions ``b``): (angle, half-width
+    ``tolerance_rad + rel_tol × angle``, upper edge, cos of the upper edge, cos of the
+    lower edge). The one formula of every pair window (:func:`pair_windows`,
+    :func:`pattern_windows`), so that a table and a pattern's own windows agree bit for
+    bit."""
+    a = 0.0
+    if i != j:
+        c = b[i, 0] * b[j, 0] + b[i, 1] * b[j, 1] + b[i, 2] * b[j, 2]
+        a = math.acos(min(max(c, -1.0), 1.0))
+    t = tolerance_rad + rel_tol * a
+    hi = min(a + t, np.pi)
+    return a, t, hi, math.cos(hi), math.cos(max(a - t, 0.0))
+
+
+@_jit
+def pair_windows(b, tolerance_rad, rel_tol):
+    """The pair windows of :class:`starid.lost_in_space.PairWindows`: pair angles of the
+    directions ``b`` (N, 3), window half-widths, upper edges and the windows' cosine
+    bounds (N, N each; :func:`_window`)."""
+    n = b.shape[0]
+    ang, tol, hi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    cmin, cmax = np.empty((n, n)), np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            ang[i, j], tol[i, j], hi[i, j], cmin[i, j], cmax[i, j] = _window(
+                b, i, j, tolerance_rad, rel_tol)
+    return ang, tol, hi, cmin, cmax
+
+
+@_jit
+def pattern_windows(pat, b_all, tolerance_rad, rel_tol):
+    """A pattern's detections in matching order (closest pair first, ties row-major) and
+    its windows at one focal guess — only its own pairs computed (a frame's first pattern
+    is usually its last: 15 pairs, not the table's 435): (sel, angles, tol, cos_min,
+    cos_max, chirality)."""
+    n = len(pat)
+    la, lt = np.empty((n, n)), np.empty((n, n))
+    llo, lhi = np.empty((n, n)), np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            if j < i:
+                la[i, j], lt[i, j], llo[i, j], lhi[i, j] = (la[j, i], lt[j, i], llo[j, i],
+                                                            lhi[j, i])
+            else:
+                a, t, _, lo, hi = _window(b_all, pat[i], pat[j], tolerance_rad, rel_tol)
+                la[i, j], lt[i, j], llo[i, j], lhi[i, j] = a, t, lo, hi
+    local = np.arange(n)
+    order = _closest_pair_first(la, local)
+    sel = np.empty(n, dtype=np.int64)
     a, t, lo, hi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     bs = np.empty((n, 3))
     t_max = -np.inf
     for i in range(n):
+        sel[i] = pat[order[i]]
         for j in range(3):
             bs[i, j] = b_all[sel[i], j]
         for j in range(n):
-            t_max = max(t_max, tol[sel[i], sel[j]])
-            a[i, j], t[i, j] = ang[sel[i], sel[j]], tol[sel[i], sel[j]]
-            lo[i, j], hi[i, j] = cmin[sel[i], sel[j]], cmax[sel[i], sel[j]]
+            oi, oj = order[i], order[j]
+            t_max = max(t_max, lt[oi, oj])
+            a[i, j], t[i, j], lo[i, j], hi[i, j] = la[oi, oj], lt[oi, oj], llo[oi, oj], \
+                lhi[oi, oj]
     chir = chirality(bs, 2.0 * t_max) if n >= 3 else 0
     return sel, a, t, lo, hi, chir
 
 
 @_jit
-def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol, cmin,
-           cmax, radius, floor, p_false_max, max_partials):
+def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, tolerance_rad,
+           rel_tol, radius, floor, p_false_max, max_partials, work):
     """Walk the pattern list ``pats`` (P, 8; ``plen`` stars each) × focal guesses (the
-    stacked tables: ``b_cams`` (C, N, 3), pair ``ang``, ``tol``, ``cmin``, ``cmax`` (C, N, N),
-    ``radius`` and ``floor`` per guess) as ``Solver._solve_at`` does, from the trial at
+    directions ``b_cams`` (C, N, 3), ``radius`` and ``floor`` per guess; each pattern's
+    windows :func:`pattern_windows` of ``tolerance_rad`` and ``rel_tol``) as
+    ``Solver._solve_at`` does, from the trial at
     ``state`` = [pattern, guess, tried, first matching counter (−1: none), …], and stop
     after the first trial with a candidate whose quick p_false ≤ ``p_false_max``.
 
@@ -549,12 +649,9 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol
     trial budget reached at ``a`` trials), and the no-match sets (bit masks per guess).
     Returns the stopping trial's (sel, assignments, quick checks) and the weak candidates
     met on the way: p_false (W,) and (W, 20) rows of pattern, guess, trial, n, sel (8),
-    assignment (8)."""
+    assignment (8). ``work`` is :func:`scratch` (all −1; left so)."""
     n_cams = b_cams.shape[0]
     pos, ci, tried, first = state[0], state[1], state[2], state[3]
-    work = np.empty(2 * len(ix[0]), dtype=np.int64)
-    for i in range(len(work)):
-        work[i] = -1
     wp = np.empty((16, 1))
     wi = np.empty((16, 20), dtype=np.int64)  # pattern, guess, trial, n, sel, assignment
     nw = 0
@@ -574,8 +671,8 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, ang, tol
                 skip = True
                 break
         if not skip:
-            sel, a, t, lo, hi, chir = pattern_of(pat, ang[ci], tol[ci], cmin[ci], cmax[ci],
-                                                 b_cams[ci])
+            sel, a, t, lo, hi, chir = pattern_windows(pat, b_cams[ci], tolerance_rad,
+                                                      rel_tol)
             rows, over, level = match(ix, lo, hi, chir, max_partials, work)
             if over > 0:
                 state[5], state[6], state[7] = NOTE_WORK, over, level

@@ -12,13 +12,17 @@ Example:
 from __future__ import annotations
 
 import itertools
+import math
+import threading
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from adfusion.starid import kernels
+from adfusion.starid import frame_kernels, kernels
 from adfusion.starid.camera import Camera
 from adfusion.starid.nstar import Pattern, WorkBudgetExceeded, chirality_of, closest_pair_first
+from adfusion.starid.refine import _PRIOR_DOF, _RADIUS_MAX_FACTOR, _RADIUS_SIGMA, _REJECT_SIGMA
 from adfusion.starid.search_order import combination_order
 from adfusion.starid.solution import Candidate, Solution
 from adfusion.starid.verify import distinct_candidates, quick_tuples
@@ -30,6 +34,12 @@ __all__ = ["EVIDENCE_RATIO", "MAX_BUDGET_SCALES", "SHARED_FRACTION", "LostInSpac
 
 #: focal guesses the trial budget grows with (beyond, a frame gets fewer patterns per guess)
 MAX_BUDGET_SCALES = 50
+
+# the final refit's constants (starid.refine), as solve_frame takes them
+_REFIT_CONSTANTS = (_REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR, float(_PRIOR_DOF))
+
+# the search's work arrays, one per thread (LostInSpace._scratch)
+_SCRATCH = threading.local()
 
 #: the best candidate wins over the others when its p_false is this many times smaller
 EVIDENCE_RATIO = 1e6
@@ -185,11 +195,14 @@ class LostInSpace:
         one). ``tried`` counts (pattern, scale) trials: the union bound of ``p_false``.
         ``per_guess`` and ``work_budget`` bound this search below the solver's own
         ``max_patterns`` and ``work_budget`` (the warm-up's small search)."""
-        b_cams = [cam.pixels_to_vectors(xy) for cam in cams]
+        if self._frame_path(cams):
+            return self._solve_frame(xy, cams[0], None, per_guess, work_budget)
+        b_cams = [directions(cam, xy) for cam in cams]
         rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
-        # every pattern's pair windows come from one table per focal guess: cheaper than
-        # building them per pattern
-        tables = [PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
+        # in numpy every pattern's pair windows come from one table per focal guess
+        # (cheaper than per pattern); compiled, each pattern computes its own
+        tables = None if self._compiled else [
+            PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
         run = Search()
         trials = self._trials_compiled if self._compiled else self._trials_numpy
         budget = self._trial_budget(len(cams), per_guess)
@@ -214,6 +227,18 @@ class LostInSpace:
                     matching_counter=len(assignments), path=path,
                     candidates=sorted(accepted, key=lambda c: c.p_false),
                 ), run.tried
+        return self._unsolved(xy, cams, b_cams, tables, run), run.tried
+
+    def _unsolved(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray] | None,
+                  tables: list[PairWindows] | None, run: Search) -> Solution:
+        """The end of a search that accepted nothing: the best few weak candidates
+        verified for an operator (or a filter's prior), else "no match" with the budget
+        note. ``b_cams`` and ``tables`` (None: computed here) are the guesses' directions
+        and pair windows."""
+        if b_cams is None or tables is None:
+            rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
+            b_cams = [directions(cam, xy) for cam in cams]
+            tables = [PairWindows.of(b, self.tolerance_rad, rel_tol) for b in b_cams]
         tried = run.tried
         best = run.best_weak(3)
         if best:
@@ -227,9 +252,155 @@ class LostInSpace:
                       f"{best[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
             return Solution(False, reason, matching_counter=run.first_counter or 0,
                             path=best[0][3],
-                            candidates=distinct_candidates(shown, 3 * self.tolerance_rad)), tried
+                            candidates=distinct_candidates(shown, 3 * self.tolerance_rad))
         reason = f"no match: {run.budget_note or f'{tried} patterns tried'}"
-        return Solution(False, reason, matching_counter=run.first_counter or 0), tried
+        return Solution(False, reason, matching_counter=run.first_counter or 0)
+
+    def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
+                       t0: float) -> Solution:
+        """:meth:`_solve_at`, then the accepted fix refitted on every detection ``xy_all``
+        (``Solver._refine``), with the solve's time since ``t0``, detections and trials
+        filled in: for a known ideal pinhole in one compiled call (:meth:`_solve_frame`)."""
+        if self._frame_path(cams):
+            return self._solve_frame(xy, cams[0], xy_all, t0=t0)[0]
+        sol, tried = self._solve_at(xy, cams)
+        return replace(self._refine(sol, xy_all), time_s=time.perf_counter() - t0,
+                       n_detections=len(xy), patterns_tried=tried)
+
+    _frame_kernel = True  # False: the search, verification and refit called one by one
+
+    def _frame_camera(self, cam: Camera) -> tuple:
+        """What :func:`starid.frame_kernels.solve_frame` takes of an ideal pinhole ``cam``:
+        its affine maps, size, the view's half-diagonal + 1e-3 rad and the pixel scale
+        (kept for the solver's own camera: a few µs a frame)."""
+        kept = self._frame_camera_kept
+        if kept is not None and kept[0] is cam:
+            return kept[1]
+        M, off, A, c = cam._ideal_pinhole
+        out = (M, off, A, c, float(cam.width), float(cam.height),
+               0.5 * math.radians(cam.diagonal_fov_deg) + 1e-3, float(cam.pixel_scale_rad))
+        if cam is self.camera:
+            self._frame_camera_kept = (cam, out)
+        return out
+
+    _frame_camera_kept: tuple | None = None
+
+    def _scratch(self) -> NDArray[np.int64]:
+        """The search's work array (:func:`kernels.scratch`: all −1, and left so), one per
+        thread, shared by the thread's solvers (any array of at least twice the catalogue's
+        length serves): the kernels release the GIL, and filling a catalogue-sized array
+        per frame cost ~3 µs. A kernel that raises drops it (:meth:`_drop_scratch`)."""
+        n = 2 * len(self._ix[0])
+        work = getattr(_SCRATCH, "work", None)
+        if work is None or len(work) < n:
+            work = _SCRATCH.work = np.full(n, -1, dtype=np.int64)
+        return work
+
+    @staticmethod
+    def _drop_scratch() -> None:
+        """Forget this thread's work array: a kernel stopped by an exception may have left
+        marks in it."""
+        _SCRATCH.work = None
+
+    def _frame_path(self, cams: list[Camera]) -> bool:
+        """Whether a search at ``cams`` runs as one compiled call
+        (:func:`starid.frame_kernels.solve_frame`): the compiled search and
+        verification, one focal guess, an ideal pinhole."""
+        return (self._frame_kernel and self._compiled and self._compiled_verify
+                and not self._fov_uncertain and len(cams) == 1
+                and cams[0]._ideal_pinhole is not None)
+
+    def _solve_frame(self, xy: NDArray, cam: Camera, xy_all: NDArray | None,
+                     per_guess: int | None = None, work_budget: int | None = None,
+                     t0: float | None = None) -> tuple[Solution, int]:
+        """:meth:`_solve_at` (and, given ``xy_all``, ``Solver._refine``) as one call of
+        :func:`starid.frame_kernels.solve_frame`: the same trials, candidates, decisions
+        and refit; Python builds the :class:`Solution` (and weighs several accepted
+        attitudes, or shows the weak ones, as :meth:`_solve_at` does) — with ``t0``, with
+        the solve's time, detections and trials filled in (as ``_solve_refined``)."""
+        sol, tried = self._frame_solution(xy, cam, xy_all, per_guess, work_budget, t0)
+        if t0 is not None and sol.n_detections != len(xy):
+            sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
+                          patterns_tried=tried)
+        return sol, tried
+
+    def _frame_solution(self, xy: NDArray, cam: Camera, xy_all: NDArray | None,
+                        per_guess: int | None, work_budget: int | None,
+                        t0: float | None) -> tuple[Solution, int]:
+        """The work of :meth:`_solve_frame`; the common outcome (one attitude, refitted)
+        with its time, detections and trials when ``t0`` is given."""
+        full = False
+        pats, plen, paths = self._pattern_list(len(xy), full)
+        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+        no_match = np.zeros((1, self.max_patterns + 2), dtype=np.int64)
+        n_no_match = np.zeros(1, dtype=np.int64)
+        budget = self._trial_budget(1, per_guess)
+        work = self.work_budget if work_budget is None else min(work_budget, self.work_budget)
+        refine = (xy_all is not None and self._compiled_refine
+                  and self._fit_terms() is None)
+        xy = np.ascontiguousarray(xy, dtype=np.float64)
+        xy_all = np.ascontiguousarray(xy_all, dtype=np.float64) if refine else xy
+        run = Search()
+        while True:
+            try:
+                outcome, sel, counter, cands, order, n_acc, refit, (wp, wi) = \
+                    frame_kernels.solve_frame(
+                        self._ix, xy, xy_all, *self._frame_camera(cam), self.tolerance_rad,
+                        state, pats, plen, budget, no_match, n_no_match, work,
+                        self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
+                        self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)
+            except BaseException:
+                self._drop_scratch()
+                raise
+            if len(wp):
+                run.weak_rows.append((wp, wi, paths))
+            if outcome != frame_kernels.NONE or full or state[0] < len(pats):
+                break
+            # Renken's patterns failed: on to the combinations (the same list, longer)
+            full = True
+            pats, plen, paths = self._pattern_list(len(xy), full)
+        pos, _, run.tried, first, _, note, a, b = state.tolist()
+        if outcome == frame_kernels.NONE:
+            run.first_counter = None if first < 0 else first
+            if note == kernels.NOTE_WORK:
+                run.budget_note = f"work budget exceeded ({a} partial assignments at level {b})"
+            elif note == kernels.NOTE_PATTERNS:
+                run.budget_note = f"{a} pattern trials (the budget)"
+            return self._unsolved(xy, [cam], None, None, run), run.tried
+        n, det, cat, q, cov, res, p = cands
+        ids = self.ids
+        found = [Candidate(q_cam_icrs=q[i], matches=list(zip(
+            det[i, :n[i]].tolist(), ids[cat[i, :n[i]]].tolist(), strict=True)),
+            residuals_rad=res[i, :n[i]], p_false=float(p[i]), n_pattern=len(sel),
+            camera=cam, covariance=cov[i], _projector=self._project) for i in range(len(n))]
+        path = paths[pos]
+        accepted = [found[i] for i in order.tolist()]
+        if outcome == frame_kernels.SEVERAL:
+            best, why = resolve_by_evidence(accepted)
+            if best is None:
+                return Solution(False, f"ambiguous: {n_acc} distinct attitudes verified",
+                                matching_counter=counter, path=path,
+                                candidates=accepted), run.tried
+            sol = replace(self._solution(best, counter, path, found), note=why)
+            return (self._refine(sol, xy_all) if xy_all is not None else sol), run.tried
+        best = accepted[0]
+        status = refit[0]
+        if status == 1:
+            _, d, k, rq, rcov, rres, sigma_px, rejected = refit
+            done = {} if t0 is None else {"time_s": time.perf_counter() - t0,
+                                          "n_detections": len(xy), "patterns_tried": run.tried}
+            return Solution(
+                True, "", q_cam_icrs=rq, matches=list(zip(d.tolist(), ids[k].tolist(),
+                                                          strict=True)),
+                matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
+                candidates=found, residuals_rad=rres, camera=cam, sigma_px=float(sigma_px),
+                note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+                **done), run.tried
+        sol = self._solution(best, counter, path, found)
+        if xy_all is not None and (status == -1 or not refine):
+            # a cone the refit left, a degenerate fit, or a fitted camera: in Python
+            sol = self._refine(sol, xy_all)
+        return sol, run.tried
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
                          tables: list[PairWindows], run: Search,
@@ -247,16 +418,17 @@ class LostInSpace:
         pix = np.array([cam.pixel_scale_rad for cam in cams])
         radius = self._match_radius_px() * pix
         floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
-        if n_cams == 1:  # views, not copies (the common case: a known camera)
-            stack = [b_cams[0][None]] + [getattr(tables[0], f)[None]
-                                         for f in ("angles", "tol", "cos_min", "cos_max")]
-        else:
-            stack = [np.stack(b_cams)] + [np.stack([getattr(t, f) for t in tables])
-                                          for f in ("angles", "tol", "cos_min", "cos_max")]
+        b_stack = b_cams[0][None] if n_cams == 1 else np.stack(b_cams)
+        rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
         while True:
-            sel, rows, q, wp, wi = kernels.search(
-                self._ix, state, pats, plen, budget, no_match,
-                n_no_match, *stack, radius, floor, self.p_false_max, work)
+            try:
+                sel, rows, q, wp, wi = kernels.search(
+                    self._ix, state, pats, plen, budget, no_match, n_no_match, b_stack,
+                    self.tolerance_rad, rel_tol, radius, floor, self.p_false_max, work,
+                    self._scratch())
+            except BaseException:
+                self._drop_scratch()
+                raise
             if len(wp):
                 run.weak_rows.append((wp, wi, paths))
             pos, ci, run.tried, first, status, note, a, b = state.tolist()
@@ -319,6 +491,24 @@ class LostInSpace:
                     yield ci, sel, assignments, quicks, path
 
 
+def directions(cam: Camera, xy: NDArray) -> NDArray[np.float64]:
+    """``cam.pixels_to_vectors(xy)``, for an ideal pinhole compiled (the arithmetic of
+    :func:`starid.frame_kernels.solve_frame` and the final refit, to the last bit; numpy's
+    matrix product may round differently).
+
+    >>> import numpy as np
+    >>> cam = Camera.pinhole(1024, 768, 15.0)
+    >>> xy = np.array([[0.0, 0.0], [511.5, 383.5]])
+    >>> bool(np.allclose(directions(cam, xy), cam.pixels_to_vectors(xy), atol=1e-15))
+    True
+    """
+    ideal = cam._ideal_pinhole
+    if ideal is None:
+        return cam.pixels_to_vectors(xy)
+    return kernels._to_vectors(np.ascontiguousarray(xy, dtype=np.float64), ideal[0],
+                               ideal[1])
+
+
 @dataclass(frozen=True)
 class PairWindows:
     """The matching windows of every detection pair at one focal guess: a pattern's are a
@@ -332,12 +522,10 @@ class PairWindows:
 
     @classmethod
     def of(cls, b_all: NDArray, tolerance_rad: float, rel_tol: float) -> PairWindows:
-        ang = np.arccos(np.clip(b_all @ b_all.T, -1, 1))
-        np.fill_diagonal(ang, 0.0)
-        tol = tolerance_rad + rel_tol * ang
-        lo = np.maximum(ang - tol, 0.0)
-        hi = np.minimum(ang + tol, np.pi)
-        return cls(ang, tol, hi, np.cos(hi), np.cos(lo))
+        # compiled (kernels.pair_windows): the compiled search computes each pattern's
+        # windows with the same formula, so the two agree to the last bit
+        return cls(*kernels.pair_windows(np.ascontiguousarray(b_all, dtype=np.float64),
+                                               float(tolerance_rad), float(rel_tol)))
 
     def pattern(self, sel: NDArray, b_all: NDArray) -> tuple[Pattern, NDArray[np.float64]]:
         """The :class:`Pattern` of detections ``sel`` (in matching order) and its windows'

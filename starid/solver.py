@@ -44,7 +44,7 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from adfusion.starid import kernels
+from adfusion.starid import frame_kernels, kernels
 from adfusion.starid import rotations as rot
 from adfusion.starid.bleif_bridge import BleifBridge
 from adfusion.starid.camera import Camera
@@ -292,10 +292,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             sol = self._refine(sol, self._all_xy(detections, xy))
             return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                            patterns_tried=1)
-        sol, tried = self._solve_at(xy, cams or self._focal_guesses())
-        sol = self._refine(sol, self._all_xy(detections, xy))
-        return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
-                       patterns_tried=tried)
+        return self._solve_refined(xy, cams or self._focal_guesses(),
+                                   self._all_xy(detections, xy), t0)
 
     def _focal_guesses(self) -> list[Camera]:
         return [self.camera.scaled(k) if k != 1.0 else self.camera
@@ -317,9 +315,10 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         if not sol.ok or self.method != "nstar":
             return sol
         used = {d for d, _ in sol.matches if d < len(xy)}
-        rest = np.array([i for i in range(len(xy)) if i not in used], dtype=np.int64)
-        if len(used) >= _REST_CHECK_SHARE * len(xy) or len(rest) < max(self.n_min, 3):
+        if (len(used) >= _REST_CHECK_SHARE * len(xy)
+                or len(xy) - len(used) < max(self.n_min, 3)):
             return sol
+        rest = np.array([i for i in range(len(xy)) if i not in used], dtype=np.int64)
         # the camera the fix fitted; the first patterns of the rest (its brightest): stars
         # left over in numbers are found there, and a rest of noise costs little
         other, tried = self._solve_at(np.ascontiguousarray(xy[rest]),
@@ -433,6 +432,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
                 self._pattern_list(n_det, True)
         else:
             solved = self.solve(pxy[:8]).ok
+        self._parse(np.ascontiguousarray(pxy[:8]))  # its input check (compiled)
         b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
         table = PairWindows.of(b_all, self.tolerance_rad, 0.0)
         self._quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)
@@ -471,42 +471,26 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             xy = arr[:, :2]
         if len(xy) < min_count:
             return xy, f"too few detections ({len(xy)} < {min_count})"
-        # cheap tests first, details only when they fail (this runs per frame in the
-        # tracking loop): all coordinates within the frame plus a slack — a NaN fails
-        # every comparison, so it lands in the detailed checks too
-        slack = 0.5 * max(self.camera.width, self.camera.height)
-        lo_x, lo_y = xy.min(axis=0).tolist()
-        hi_x, hi_y = xy.max(axis=0).tolist()
+        # compiled (frame_kernels.input_problem): this runs per frame, and its half-dozen
+        # numpy calls cost more than the checks
         use = xy[: self.max_detections]
-        if not (lo_x >= -0.5 - slack and lo_y >= -0.5 - slack
-                and hi_x <= self.camera.width - 0.5 + slack
-                and hi_y <= self.camera.height - 0.5 + slack):
-            if not np.isfinite(xy).all():
-                bad = ~np.isfinite(xy).all(axis=1)
-                return xy, f"bad input: {int(bad.sum())} non-finite centroid(s), first at " \
-                           f"row {int(np.flatnonzero(bad)[0])}"
-            outside = ~self.camera.in_frame(use, margin=-slack)
-            if outside.any():
-                return xy, f"bad input: centroid row {int(np.flatnonzero(outside)[0])} lies " \
-                           "far outside the frame"
-        xs = np.sort(use[:, 0])
-        # (inside the frame no difference overflows: no errstate needed on this hot path)
-        gap = float(np.min(xs[1:] - xs[:-1])) if len(xs) > 1 else np.inf
-        if gap < 1e-6:
-            # some x coincide: look for pairs closer than 1e-6 px in both coordinates
-            diff = use[:, None, :] - use[None, :, :]
-            d2 = np.einsum("ijk,ijk->ij", diff, diff)
-            d2.flat[:: len(use) + 1] = np.inf
-            if d2.min() < 1e-12:
-                dup = np.argwhere(d2 < 1e-12)
-                return xy, f"bad input: duplicate centroids at rows {int(dup[0, 0])} and " \
-                           f"{int(dup[0, 1])}"
+        code, a, b = frame_kernels.input_problem(
+            np.ascontiguousarray(xy), len(use), float(self.camera.width), float(self.camera.height),
+            0.5 * max(self.camera.width, self.camera.height))
+        if code == 1:
+            return xy, f"bad input: {a} non-finite centroid(s), first at row {b}"
+        if code == 2:
+            return xy, f"bad input: centroid row {a} lies far outside the frame"
+        if code == 3:
+            return xy, f"bad input: duplicate centroids at rows {a} and {b}"
         return use, ""
 
     def _all_xy(self, detections, use: NDArray) -> NDArray[np.float64]:
         """Every detection (not only the brightest ``max_detections`` the search uses),
         in the order of ``use``, for the final fit; positions outside the frame dropped
         from the end."""
+        if len(detections.xy if hasattr(detections, "xy") else detections) <= len(use):
+            return use
         if hasattr(detections, "xy"):
             xy = np.asarray(detections.xy, dtype=np.float64)
         else:

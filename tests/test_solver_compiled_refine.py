@@ -59,11 +59,14 @@ def test_the_compiled_verification_equals_the_python_code(cat, sigma_px, n_false
 
 
 def test_an_uncertain_camera_keeps_the_python_refit(cat, monkeypatch):
-    """A camera being fitted (FOV uncertain) is refitted in Python, not by the kernel."""
-    from adfusion.starid import kernels
+    """A camera being fitted (FOV uncertain) is refitted in Python, not by the kernels (the
+    refit's own, or the one-call frame's that runs it)."""
+    from adfusion.starid import frame_kernels, kernels
     calls = []
-    real = kernels.refine_pinhole
+    real, real_frame = kernels.refine_pinhole, frame_kernels.solve_frame
     monkeypatch.setattr(kernels, "refine_pinhole", lambda *a: calls.append(1) or real(*a))
+    monkeypatch.setattr(frame_kernels, "solve_frame",
+                        lambda *a: calls.append(a[-2]) or real_frame(*a))  # a[-2]: refine
     xy, _ = sky_frame(cat, starid.Camera.pinhole(1024, 768, 15.2), np.random.default_rng(3))
     s = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), fov_error_deg=0.6,
                       max_patterns=40)

@@ -1,0 +1,298 @@
+"""A lost-in-space frame in one compiled call: pair windows, the pattern walk with its
+quick checks (:func:`starid.kernels.search`), the full verification of every candidate
+that passes (:func:`starid.kernels.verify_candidate`), the choice among them and the final
+refit (:func:`starid.kernels.refine_pinhole`) on the catalogue cone the kernel gathers
+itself.
+
+Why one call: with the search compiled, a clean frame's search took ~0.04 ms and the
+Python around it ~0.13 ms — some 25 calls (pixel directions, the pair-window table, the
+verification's and refit's wrappers, the catalogue cone's KD-tree query, two
+``dataclasses.replace``), each a few µs of overhead. Here Python parses the detections
+once, makes one call, and builds the :class:`starid.Solution` once
+(docs/concepts/identification.md, "One compiled call").
+
+The kernel is the solver's own code path for a known, undistorted pinhole camera (one
+focal guess), not a copy of it: it calls the same compiled search, verification and
+refit, and each pattern's windows come from the formula of
+:class:`starid.lost_in_space.PairWindows` (:func:`starid.kernels.pair_windows`). What it
+adds — the distinct-attitude test, the cone — computes what
+:func:`starid.verify.distinct_candidates` and ``Solver._cone`` compute;
+``benchmarks/compiled_equivalence.py --reference pieces`` compares whole solutions with the
+pieces called one by one (every discrete field exactly).
+
+Example:
+    >>> import numpy as np
+    >>> from adfusion.starid.frame_kernels import input_problem
+    >>> xy = np.array([[10.0, 10.0], [200.0, 50.0], [10.0, 10.0 + 1e-9]])
+    >>> input_problem(xy, 3, 1024.0, 768.0, 512.0)  # (duplicate, rows 0 and 2)
+    (3, 0, 2)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from adfusion.starid.kernels import (
+    STRONG,
+    _jit,
+    _matrix_of,
+    _to_vectors,
+    refine_pinhole,
+    search,
+    verify_candidate,
+)
+
+__all__ = ["ACCEPTED", "NONE", "SEVERAL", "input_problem", "solve_frame"]
+
+# solve_frame() outcome
+NONE, ACCEPTED, SEVERAL = 0, 1, 2
+# the cone the refit draws its stars from is this much wider than the view (rad), where the
+# anchor's neighbour row reaches so far; a refit moves the attitude by arcseconds
+_CONE_SPARE_RAD = math.radians(2.0)
+_CONE_SPARE_MIN_RAD = 1e-4
+
+
+@_jit
+def _angle_between(p, q):
+    """``rotations.angle_between`` of two quaternions (the same formula)."""
+    ka = 1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3])
+    kb = 1.0 / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if p[0] * q[0] + p[1] * q[1] + p[2] * q[2] + p[3] * q[3] < 0:
+        kb = -kb
+    dm = 0.0
+    dp = 0.0
+    for i in range(4):
+        a, b = p[i] * ka, q[i] * kb
+        dm += (a - b) ** 2
+        dp += (a + b) ** 2
+    return 4.0 * math.atan2(math.sqrt(dm), math.sqrt(dp))
+
+
+@_jit
+def _cone(ix, axis, half_rad, anchor, theta):
+    """Catalogue rows (ascending) and vectors of the stars within ``half_rad`` of ``axis``
+    — from the neighbour row of ``anchor`` (``theta`` from the axis) when it reaches that
+    far, else from every star."""
+    v, nbr_idx, nbr_bin, max_sep = ix[0], ix[5], ix[7], ix[8]
+    cos_half = math.cos(half_rad)
+    k = 0
+    if theta + half_rad < max_sep:
+        nb = nbr_bin.shape[1] - 1
+        b1 = min(int((theta + half_rad) / (max_sep / nb)) + 1, nb)
+        lo, hi = nbr_bin[anchor, 0], nbr_bin[anchor, b1]
+        idx = np.empty(hi - lo + 1, dtype=np.int64)
+        if v[anchor, 0] * axis[0] + v[anchor, 1] * axis[1] + v[anchor, 2] * axis[2] \
+                >= cos_half:
+            idx[0] = anchor
+            k = 1
+        for e in range(lo, hi):
+            s = nbr_idx[e]
+            if v[s, 0] * axis[0] + v[s, 1] * axis[1] + v[s, 2] * axis[2] >= cos_half:
+                idx[k] = s
+                k += 1
+        idx = np.sort(idx[:k])
+    else:
+        idx = np.empty(len(v), dtype=np.int64)
+        for s in range(len(v)):
+            if v[s, 0] * axis[0] + v[s, 1] * axis[1] + v[s, 2] * axis[2] >= cos_half:
+                idx[k] = s
+                k += 1
+        idx = idx[:k]
+    vec = np.empty((k, 3))
+    for e in range(k):
+        for j in range(3):
+            vec[e, j] = v[idx[e], j]
+    return idx, vec
+
+
+@_jit
+def _refit(ix, q, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, height, view_half,
+           pix, r_min, sigma0, consts):
+    """:func:`starid.kernels.refine_pinhole` of an accepted candidate, on a cone around
+    its boresight: from the anchor's neighbour row, or every star when the refit leaves
+    that cone."""
+    v = ix[0]
+    R = _matrix_of(q)
+    axis = np.empty(3)
+    for j in range(3):
+        axis[j] = R[2, j]
+    cth = min(max(v[anchor, 0] * axis[0] + v[anchor, 1] * axis[1] + v[anchor, 2] * axis[2],
+                  -1.0), 1.0)
+    theta = math.acos(cth)
+    spare = min(_CONE_SPARE_RAD, ix[8] - theta - view_half - 1e-9)
+    for attempt in range(2):
+        if attempt == 1 or spare < _CONE_SPARE_MIN_RAD:
+            spare = _CONE_SPARE_RAD
+            theta = np.inf  # every star
+        half = min(view_half + spare, np.pi)
+        idx, vec = _cone(ix, axis, half, anchor, theta)
+        out = refine_pinhole(xy_all, ok_all, det, cat, v, M, off, A, c, width, height, idx,
+                             vec, axis, half, view_half, pix, r_min, sigma0, consts[0],
+                             consts[1], consts[2], consts[3])
+        if out[0] >= 0 or theta == np.inf:
+            return out
+    return out
+
+
+@_jit
+def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
+                tolerance_rad, state, pats, plen, budget, no_match, n_no_match, max_partials,
+                work, r_min_px, sigma0_px, p_false_max, distinct_rad, refine, consts):
+    """``Solver._solve_at`` and ``Solver._refine`` of one frame for a known ideal pinhole
+    (``M``, ``off``, ``A``, ``c``: ``Camera._ideal_pinhole``; ``view_half`` the half
+    diagonal + 1e-3 rad, ``pix`` the pixel scale): the pattern list ``pats`` walked from
+    ``state`` (:func:`starid.kernels.search`'s; ``work`` its scratch), every candidate of a
+    trial that passes the quick check verified, and the walk continued while none of them
+    is accepted.
+
+    Returns (outcome, sel, counter, cands, order, n_acc, refit, weak):
+
+    * outcome NONE (the list ended or a budget: ``state`` says which), ACCEPTED (one
+      distinct attitude at p_false ≤ ``p_false_max``; refitted when ``refine``) or
+      SEVERAL (the caller weighs the evidence);
+    * ``counter`` the trial's assignments (Renken's matching counter);
+    * cands = (n, det, cat, q, cov, res, p_false): the trial's verified candidates in
+      assignment order (candidate k's pairs det[k, :n[k]] → cat[k, :n[k]]);
+    * ``order[:n_acc]`` the accepted ones, distinct, by p_false;
+    * refit = :func:`starid.kernels.refine_pinhole`'s tuple, pairs by detection (status
+      −2: not run);
+    * weak = the search's weak candidates (p_false (W,), rows (W, 20))."""
+    n_xy = xy.shape[0]
+    b = _to_vectors(xy, M, off)
+    ok_all = np.empty(xy_all.shape[0], dtype=np.bool_)
+    for i in range(xy_all.shape[0]):
+        ok_all[i] = math.isfinite(xy_all[i, 0]) and math.isfinite(xy_all[i, 1])
+    radius = np.array([r_min_px * pix])
+    floor = np.array([math.sqrt(2.0) * sigma0_px * pix])
+    sigma = sigma0_px * pix
+    wp_all = np.empty(0)
+    wi_all = np.empty((0, 20), dtype=np.int64)
+    empty_i = np.zeros(0, dtype=np.int64)
+    no_refit = (-2, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
+    while True:
+        sel, rows, q, wp, wi = search(ix, state, pats, plen, budget, no_match, n_no_match,
+                                      b.reshape(1, n_xy, 3), tolerance_rad, 0.0, radius,
+                                      floor, p_false_max, max_partials, work)
+        if len(wp):
+            wp_all = np.concatenate((wp_all, wp))
+            wi_all = np.concatenate((wi_all, wi))
+        if state[4] != STRONG:
+            cands = (empty_i, np.zeros((0, n_xy), dtype=np.int64),
+                     np.zeros((0, n_xy), dtype=np.int64), np.zeros((0, 4)),
+                     np.zeros((0, 3, 3)), np.zeros((0, n_xy)), np.zeros(0))
+            return NONE, sel, 0, cands, empty_i, 0, no_refit, (wp_all, wi_all)
+        ok, pq, rots, e_tr, det, cat, matched = q
+        n_k = len(rows)
+        c_n = np.zeros(n_k, dtype=np.int64)
+        c_det = np.zeros((n_k, n_xy), dtype=np.int64)
+        c_cat = np.zeros((n_k, n_xy), dtype=np.int64)
+        c_q = np.zeros((n_k, 4))
+        c_cov = np.zeros((n_k, 3, 3))
+        c_res = np.zeros((n_k, n_xy))
+        c_p = np.zeros(n_k)
+        c_row = np.zeros(n_k, dtype=np.int64)
+        nc = 0
+        for k in range(n_k):
+            if not ok[k] or not pq[k] <= p_false_max:
+                continue
+            good, d, h, qk, cov, res, p = verify_candidate(
+                ix, b, rots[k], e_tr[k], det[k, :matched[k]], cat[k, :matched[k]], sel,
+                rows[k], n_xy, radius[0], sigma)
+            if not good:
+                continue
+            m = len(d)
+            c_n[nc] = m
+            c_det[nc, :m] = d
+            c_cat[nc, :m] = h
+            c_q[nc] = qk
+            c_cov[nc] = cov
+            c_res[nc, :m] = res
+            c_p[nc] = p
+            c_row[nc] = k
+            nc += 1
+        # distinct_candidates of those at p_false ≤ p_false_max: by p_false (stable), each
+        # kept when farther than distinct_rad from every one kept before
+        order = np.empty(nc, dtype=np.int64)
+        n_acc = 0
+        by_p = np.argsort(c_p[:nc], kind="mergesort")
+        for t in range(nc):
+            i = by_p[t]
+            if not c_p[i] <= p_false_max:
+                continue
+            far = True
+            for u in range(n_acc):
+                if not _angle_between(c_q[i], c_q[order[u]]) > distinct_rad:
+                    far = False
+                    break
+            if far:
+                order[n_acc] = i
+                n_acc += 1
+        cands = (c_n[:nc], c_det[:nc], c_cat[:nc], c_q[:nc], c_cov[:nc], c_res[:nc],
+                 c_p[:nc])
+        if n_acc == 1:
+            i = order[0]
+            refit = no_refit
+            if refine and c_n[i] >= 3:
+                refit = _refit(ix, c_q[i], rows[c_row[i], 0], xy_all, ok_all,
+                               c_det[i, :c_n[i]], c_cat[i, :c_n[i]], M, off, A, c, width,
+                               height, view_half, pix, r_min_px, sigma0_px, consts)
+                if refit[0] == 1:
+                    refit = _by_detection(refit)
+            return ACCEPTED, sel, n_k, cands, order[:1], 1, refit, (wp_all, wi_all)
+        if n_acc > 1:
+            return SEVERAL, sel, n_k, cands, order[:n_acc], n_acc, no_refit, (wp_all, wi_all)
+        # nothing accepted at this trial: on to the next one
+        state[0], state[1] = state[0] + 1, 0
+
+
+@_jit
+def _by_detection(refit):
+    """A refit's pairs and residuals sorted by detection (``np.argsort``, as
+    ``Refinement._refine_pinhole`` sorts them)."""
+    status, d, k, q, cov, res, sigma_px, rejected = refit
+    o = np.argsort(d)
+    return status, d[o], k[o], q, cov, res[o], sigma_px, rejected
+
+
+@_jit
+def input_problem(xy, n_use, width, height, slack):
+    """What ``Solver._parse`` refuses in detections ``xy`` (N, 2), the first ``n_use`` of
+    which the search uses: (0, 0, 0) none; (1, count, first row) non-finite centroids;
+    (2, row, 0) a used centroid more than ``slack`` px outside the frame; (3, row, row) two
+    used centroids closer than 1e-6 px. The cheap test first (every position within the
+    frame plus the slack), the details only when it fails."""
+    n = xy.shape[0]
+    lo, hi_x, hi_y = -0.5 - slack, width - 0.5 + slack, height - 0.5 + slack
+    for i in range(n):
+        x, y = xy[i, 0], xy[i, 1]
+        if not (x >= lo and y >= lo and x <= hi_x and y <= hi_y):  # NaN fails too
+            bad, first = 0, -1
+            for r in range(n):
+                if not (math.isfinite(xy[r, 0]) and math.isfinite(xy[r, 1])):
+                    bad += 1
+                    if first < 0:
+                        first = r
+            if bad:
+                return 1, bad, first
+            for r in range(min(n_use, n)):
+                x, y = xy[r, 0], xy[r, 1]
+                if not (x >= lo and y >= lo and x <= hi_x and y <= hi_y):
+                    return 2, r, 0
+            break
+    m = min(n_use, n)
+    if m > 1:
+        xs = np.empty(m)
+        for i in range(m):
+            xs[i] = xy[i, 0]
+        xs.sort()
+        gap = np.inf
+        for i in range(m - 1):
+            gap = min(gap, xs[i + 1] - xs[i])
+        if gap < 1e-6:  # some x coincide: a pair closer than 1e-6 px in both coordinates?
+            for i in range(m):
+                for j in range(m):
+                    dx, dy = xy[i, 0] - xy[j, 0], xy[i, 1] - xy[j, 1]
+                    if i != j and dx * dx + dy * dy < 1e-12:
+                        return 3, i, j
+    return 0, 0, 0

@@ -1,0 +1,91 @@
+"""A lost-in-space frame in one compiled call (frame_kernels.solve_frame) against the same
+search, verification and refit called one by one from Python (Solver._frame_kernel =
+False): the same solutions, field by field, on frames that end every way a frame can —
+identified, refitted with pairs rejected, checked on the rest of the frame, weak candidates
+shown, nothing found — and the pair list's coarse table against a plain search of the
+pair list. benchmarks/compiled_equivalence.py runs both comparisons on the benchmark's
+frames, and against a recording of the code before a change."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from adfusion.starid import kernels
+from test_solver import sky_frame
+
+from adfusion import starid
+
+
+@pytest.fixture(scope="module")
+def cat():
+    return starid.Catalog.hipparcos(mag_limit=6.0, epoch=2025.0)
+
+
+def _same(a, b) -> None:
+    """Two solutions of one frame: every field equal (the same arithmetic runs in both)."""
+    for f in ("ok", "reason", "path", "patterns_tried", "matches", "matching_counter",
+              "note", "sigma_px", "n_detections", "mode"):
+        assert getattr(a, f) == getattr(b, f), f
+    assert [c.matches for c in a.candidates] == [c.matches for c in b.candidates]
+    assert [a.p_false] + [c.p_false for c in a.candidates] == \
+        [b.p_false] + [c.p_false for c in b.candidates]
+    if a.ok:
+        np.testing.assert_array_equal(a.q_cam_icrs, b.q_cam_icrs)
+        np.testing.assert_array_equal(a.covariance, b.covariance)
+        np.testing.assert_array_equal(a.residuals_rad, b.residuals_rad)
+        assert a.camera is b.camera
+
+
+@pytest.mark.parametrize("sigma_px, n_false, drop, kind", [
+    (0.3, 0, 0.0, "sky"), (0.3, 8, 0.0, "sky"), (0.3, 3, 0.3, "sky"), (2.0, 0, 0.0, "sky"),
+    (0.3, 25, 0.0, "sky"), (0.3, 0, 0.0, "noise")])
+def test_one_compiled_call_solves_a_frame_as_the_pieces_do(cat, sigma_px, n_false, drop,
+                                                           kind):
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam, centroid_sigma_px=max(0.5, sigma_px))
+    rng = np.random.default_rng(139 + n_false)
+    outcomes = set()
+    for _ in range(12):
+        xy, _ = sky_frame(cat, cam, rng, sigma_px=sigma_px, n_false=n_false, drop=drop)
+        if kind == "noise":
+            xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (9, 2))
+        solver._frame_kernel = True
+        a = solver.solve(xy)
+        solver._frame_kernel = False
+        b = solver.solve(xy)
+        _same(a, b)
+        outcomes.add("ok" if a.ok else a.reason.split(":")[0])
+        if "rejected" in a.note:
+            outcomes.add("rejected")
+        if len(xy) > solver.max_detections and a.ok:
+            outcomes.add("beyond the search's detections")
+    if kind == "noise":
+        assert outcomes == {"ambiguous"}  # weak candidates verified and shown
+    else:
+        assert "ok" in outcomes
+    if sigma_px > 1:
+        assert "rejected" in outcomes  # the refit's residual rejection ran in the kernel
+
+
+def test_the_pair_lists_coarse_table_finds_the_rows_a_plain_search_finds(cat):
+    """kernels._pair_window brackets each edge with the coarse table (kernels.pair_bins)
+    and checks the bracket: its rows must be those of a plain scan of the pair list, for
+    windows anywhere, narrow or wide, with edges on stored cosines (ties) and beyond the
+    list's reach."""
+    solver = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0))
+    ix = solver._ix
+    pc, bins, max_sep = ix[3], ix[9], ix[8]
+    rng = np.random.default_rng(3)
+    lows = np.concatenate([rng.uniform(0, max_sep * 1.2, 300),
+                           np.arccos(np.clip(pc[rng.integers(0, len(pc), 100)], -1, 1)),
+                           [0.0, max_sep]])
+    for lo_rad in lows:
+        for width in (1e-6, 5e-4, 0.05):
+            cmax, cmin = np.cos(lo_rad), np.cos(min(lo_rad + width, np.pi))
+            if rng.uniform() < 0.3:  # an edge exactly on a stored cosine
+                cmax = pc[rng.integers(0, len(pc))]
+                cmin = min(cmin, cmax - 1e-9)
+            inside = np.flatnonzero((pc > cmin) & (pc < cmax))
+            want = (inside[0], inside[-1] + 1) if len(inside) else None
+            lo, hi = kernels._pair_window(pc, cmin, cmax, bins, max_sep)
+            assert (lo, hi) == want if want else lo == hi
