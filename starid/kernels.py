@@ -103,6 +103,8 @@ def _bracket(bins, max_sep, c, n_rows):
     """Rows [a, b) of the pair list that hold the first row near cosine ``c`` by the coarse
     table (a bin either side of c's for rounding); the caller checks the bracket."""
     nb = len(bins) - 1
+    if not c == c:  # NaN: no bracket (int(NaN) would index anywhere)
+        return 0, n_rows
     k = int(math.acos(min(max(c, -1.0), 1.0)) / (max_sep / nb))
     a = bins[min(max(k - 1, 0), nb)]
     b = bins[min(k + 2, nb)] if k + 2 <= nb else n_rows

@@ -339,13 +339,15 @@ class LostInSpace:
         refine = (xy_all is not None and self._compiled_refine
                   and self._fit_terms() is None)
         xy = np.ascontiguousarray(xy, dtype=np.float64)
-        xy_all = np.ascontiguousarray(xy_all, dtype=np.float64) if refine else xy
+        # the detections the kernel refits on (unused without a refit); xy_all itself stays
+        # what the Python refit gets (None: none, as _solve_at returns the verified fit)
+        refit_xy = np.ascontiguousarray(xy_all, dtype=np.float64) if refine else xy
         run = Search()
         while True:
             try:
                 outcome, sel, counter, cands, order, n_acc, refit, (wp, wi) = \
                     frame_kernels.solve_frame(
-                        self._ix, xy, xy_all, *self._frame_camera(cam), self.tolerance_rad,
+                        self._ix, xy, refit_xy, *self._frame_camera(cam), self.tolerance_rad,
                         state, pats, plen, budget, no_match, n_no_match, work,
                         self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
                         self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)

@@ -201,6 +201,10 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         if not 0 <= fov_error_deg < camera.fov_x_deg:
             raise ValueError(f"fov_error_deg must be in [0, {camera.fov_x_deg:.2f}) for this "
                              f"camera, got {fov_error_deg}")
+        if tolerance_deg is not None and not (np.isfinite(tolerance_deg)
+                                               and 0 < tolerance_deg < 90):
+            raise ValueError(f"tolerance_deg must be in (0, 90) degrees, got {tolerance_deg}"
+                             " (or None: from the camera and centroid_sigma_px)")
         if not 0 < p_false_max < 1:
             raise ValueError("p_false_max must be in (0, 1)")
         if not 3 <= max_detections <= 64:

@@ -89,3 +89,50 @@ def test_the_pair_lists_coarse_table_finds_the_rows_a_plain_search_finds(cat):
             want = (inside[0], inside[-1] + 1) if len(inside) else None
             lo, hi = kernels._pair_window(pc, cmin, cmax, bins, max_sep)
             assert (lo, hi) == want if want else lo == hi
+
+
+def test_without_a_refit_the_one_call_path_leaves_the_verified_fit(cat):
+    """_solve_at (the rest-of-frame check's search, the warm-up's) returns the verified fit,
+    not a refit: on the one-call path as on the pieces' (review finding: the detections the
+    kernel would refit on had replaced the caller's, so a refit ran on the search's own)."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    rng = np.random.default_rng(5)
+    for _ in range(4):
+        xy, _ = sky_frame(cat, cam, rng)
+        xy = np.ascontiguousarray(xy[: solver.max_detections])
+        solver._frame_kernel = True
+        a, tried_a = solver._solve_at(xy, [cam])
+        solver._frame_kernel = False
+        b, tried_b = solver._solve_at(xy, [cam])
+        assert a.ok and a.sigma_px is None
+        _same(a, b)
+        assert tried_a == tried_b
+
+
+def test_a_fitted_camera_is_refitted_on_every_detection(cat):
+    """With a camera fitted after identification the refit runs in Python, on every
+    detection — also those beyond the ``max_detections`` the search used."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam, fit_camera="focal", max_detections=10)
+    rng = np.random.default_rng(6)
+    beyond = frames = 0
+    while frames < 4:
+        xy, _ = sky_frame(cat, cam, rng)
+        if len(xy) <= 14:  # too few beyond the search's 10
+            continue
+        frames += 1
+        solver._frame_kernel = True
+        a = solver.solve(xy)
+        solver._frame_kernel = False
+        b = solver.solve(xy)
+        assert a.ok
+        assert (a.matches, a.p_false, a.note) == (b.matches, b.p_false, b.note)
+        beyond += any(d >= solver.max_detections for d, _ in a.matches)
+    assert beyond == 4
+
+
+@pytest.mark.parametrize("tol", [float("nan"), -0.01, 0.0, float("inf")])
+def test_a_tolerance_that_is_not_an_angle_is_refused(cat, tol):
+    with pytest.raises(ValueError, match="tolerance_deg"):
+        starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), tolerance_deg=tol)
