@@ -114,6 +114,12 @@ class LostInSpace:
 
     _scale_step = 0.01  # 1 % focal steps; windows widen by half a step × distance
 
+    @property
+    def _rel_tol(self) -> float:
+        """The pair windows' widening per radian of pair distance: half a focal step when
+        the focal length is searched, else none."""
+        return 0.5 * self._scale_step if self._fov_uncertain else 0.0
+
     def _patterns(self, n_det: int) -> Iterator[tuple[tuple[int, ...], str]]:
         """Patterns in a fixed order: Renken's main pattern, his Not-Modus ((n−1)- and
         (n−2)-star sub-patterns, then fainter detections swapped in), then — our
@@ -198,11 +204,10 @@ class LostInSpace:
         if self._frame_path(cams):
             return self._solve_frame(xy, cams[0], None, per_guess, work_budget)
         b_cams = [directions(cam, xy) for cam in cams]
-        rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
         # in numpy every pattern's pair windows come from one table per focal guess
         # (cheaper than per pattern); compiled, each pattern computes its own
         tables = None if self._compiled else [
-            PairWindows.of(b_all, self.tolerance_rad, rel_tol) for b_all in b_cams]
+            PairWindows.of(b_all, self.tolerance_rad, self._rel_tol) for b_all in b_cams]
         run = Search()
         trials = self._trials_compiled if self._compiled else self._trials_numpy
         budget = self._trial_budget(len(cams), per_guess)
@@ -235,10 +240,10 @@ class LostInSpace:
         verified for an operator (or a filter's prior), else "no match" with the budget
         note. ``b_cams`` and ``tables`` (None: computed here) are the guesses' directions
         and pair windows."""
-        if b_cams is None or tables is None:
-            rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
+        if b_cams is None:
             b_cams = [directions(cam, xy) for cam in cams]
-            tables = [PairWindows.of(b, self.tolerance_rad, rel_tol) for b in b_cams]
+        if tables is None:
+            tables = [PairWindows.of(b, self.tolerance_rad, self._rel_tol) for b in b_cams]
         tried = run.tried
         best = run.best_weak(3)
         if best:
@@ -318,17 +323,19 @@ class LostInSpace:
         and refit; Python builds the :class:`Solution` (and weighs several accepted
         attitudes, or shows the weak ones, as :meth:`_solve_at` does) — with ``t0``, with
         the solve's time, detections and trials filled in (as ``_solve_refined``)."""
-        sol, tried = self._frame_solution(xy, cam, xy_all, per_guess, work_budget, t0)
-        if t0 is not None and sol.n_detections != len(xy):
+        sol, tried, filled = self._frame_solution(xy, cam, xy_all, per_guess, work_budget,
+                                                  t0)
+        if t0 is not None and not filled:
             sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                           patterns_tried=tried)
         return sol, tried
 
     def _frame_solution(self, xy: NDArray, cam: Camera, xy_all: NDArray | None,
                         per_guess: int | None, work_budget: int | None,
-                        t0: float | None) -> tuple[Solution, int]:
-        """The work of :meth:`_solve_frame`; the common outcome (one attitude, refitted)
-        with its time, detections and trials when ``t0`` is given."""
+                        t0: float | None) -> tuple[Solution, int, bool]:
+        """The work of :meth:`_solve_frame`: (solution, trials, whether the solution has its
+        time, detections and trials filled in — the common outcome, one attitude refitted
+        in the kernel, has when ``t0`` is given)."""
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
         state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
@@ -368,7 +375,7 @@ class LostInSpace:
                 run.budget_note = f"work budget exceeded ({a} partial assignments at level {b})"
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
-            return self._unsolved(xy, [cam], None, None, run), run.tried
+            return self._unsolved(xy, [cam], None, None, run), run.tried, False
         n, det, cat, q, cov, res, p = cands
         ids = self.ids
         found = [Candidate(q_cam_icrs=q[i], matches=list(zip(
@@ -382,9 +389,10 @@ class LostInSpace:
             if best is None:
                 return Solution(False, f"ambiguous: {n_acc} distinct attitudes verified",
                                 matching_counter=counter, path=path,
-                                candidates=accepted), run.tried
+                                candidates=accepted), run.tried, False
             sol = replace(self._solution(best, counter, path, found), note=why)
-            return (self._refine(sol, xy_all) if xy_all is not None else sol), run.tried
+            return ((self._refine(sol, xy_all) if xy_all is not None else sol), run.tried,
+                    False)
         best = accepted[0]
         status = refit[0]
         if status == 1:
@@ -397,12 +405,12 @@ class LostInSpace:
                 matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
                 candidates=found, residuals_rad=rres, camera=cam, sigma_px=float(sigma_px),
                 note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-                **done), run.tried
+                **done), run.tried, t0 is not None
         sol = self._solution(best, counter, path, found)
         if xy_all is not None and (status == -1 or not refine):
             # a cone the refit left, a degenerate fit, or a fitted camera: in Python
             sol = self._refine(sol, xy_all)
-        return sol, run.tried
+        return sol, run.tried, False
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
                          tables: list[PairWindows], run: Search,
@@ -421,12 +429,11 @@ class LostInSpace:
         radius = self._match_radius_px() * pix
         floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
         b_stack = b_cams[0][None] if n_cams == 1 else np.stack(b_cams)
-        rel_tol = 0.5 * self._scale_step if self._fov_uncertain else 0.0
         while True:
             try:
                 sel, rows, q, wp, wi = kernels.search(
                     self._ix, state, pats, plen, budget, no_match, n_no_match, b_stack,
-                    self.tolerance_rad, rel_tol, radius, floor, self.p_false_max, work,
+                    self.tolerance_rad, self._rel_tol, radius, floor, self.p_false_max, work,
                     self._scratch())
             except BaseException:
                 self._drop_scratch()
@@ -527,7 +534,7 @@ class PairWindows:
         # compiled (kernels.pair_windows): the compiled search computes each pattern's
         # windows with the same formula, so the two agree to the last bit
         return cls(*kernels.pair_windows(np.ascontiguousarray(b_all, dtype=np.float64),
-                                               float(tolerance_rad), float(rel_tol)))
+                                         float(tolerance_rad), float(rel_tol)))
 
     def pattern(self, sel: NDArray, b_all: NDArray) -> tuple[Pattern, NDArray[np.float64]]:
         """The :class:`Pattern` of detections ``sel`` (in matching order) and its windows'

@@ -479,8 +479,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         # numpy calls cost more than the checks
         use = xy[: self.max_detections]
         code, a, b = frame_kernels.input_problem(
-            np.ascontiguousarray(xy), len(use), float(self.camera.width), float(self.camera.height),
-            0.5 * max(self.camera.width, self.camera.height))
+            np.ascontiguousarray(xy), len(use), float(self.camera.width),
+            float(self.camera.height), 0.5 * max(self.camera.width, self.camera.height))
         if code == 1:
             return xy, f"bad input: {a} non-finite centroid(s), first at row {b}"
         if code == 2:
