@@ -42,8 +42,10 @@ from adfusion.starid.kernels import (
     search,
     verify_candidate,
 )
+from numpy.typing import NDArray
 
-__all__ = ["ACCEPTED", "NONE", "SEVERAL", "input_problem", "solve_frame"]
+__all__ = ["ACCEPTED", "NONE", "PACKED_HEADER", "SEVERAL", "input_problem", "solve_frame",
+           "solve_frame_packed", "unpack"]
 
 # solve_frame() outcome
 NONE, ACCEPTED, SEVERAL = 0, 1, 2
@@ -160,9 +162,14 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
     * weak = the search's weak candidates (p_false (W,), rows (W, 20))."""
     n_xy = xy.shape[0]
     b = _to_vectors(xy, M, off)
+    # the refit's detections: finite, and past the search's n_xy inside the frame
+    # (Camera.in_frame's test; Solver._all_xy marks them so for the Python refit)
     ok_all = np.empty(xy_all.shape[0], dtype=np.bool_)
     for i in range(xy_all.shape[0]):
-        ok_all[i] = math.isfinite(xy_all[i, 0]) and math.isfinite(xy_all[i, 1])
+        x, y = xy_all[i, 0], xy_all[i, 1]
+        ok_all[i] = math.isfinite(x) and math.isfinite(y) and (
+            i < n_xy or (x >= -0.5 and y >= -0.5 and x <= width - 0.5
+                         and y <= height - 0.5))
     radius = np.array([r_min_px * pix])
     floor = np.array([math.sqrt(2.0) * sigma0_px * pix])
     sigma = sigma0_px * pix
@@ -244,6 +251,127 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
             return SEVERAL, sel, n_k, cands, order[:n_acc], n_acc, no_refit, (wp_all, wi_all)
         # nothing accepted at this trial: on to the next one
         state[0], state[1] = state[0] + 1, 0
+
+
+#: the header of :func:`solve_frame_packed`'s integers: outcome, counter, n_acc, candidates,
+#: pattern stars, refit status, pairs rejected, refit pairs, weak rows
+PACKED_HEADER = 9
+_NO_FLOATS, _NO_ROWS = np.zeros(0), np.zeros((0, 20), dtype=np.int64)
+_NO_FLOATS.flags.writeable = _NO_ROWS.flags.writeable = False
+
+
+@_jit
+def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
+                       tolerance_rad, state, pats, plen, budget, no_match, n_no_match,
+                       max_partials, work, r_min_px, sigma0_px, p_false_max, distinct_rad,
+                       refine, consts):
+    """:func:`solve_frame` with its result in two flat arrays (integers, floats) and the
+    catalogue rows as the catalogue's ``ids``: returning its ~20 arrays cost ~1 µs each
+    to hand to Python, more than the Python that reads them (:func:`unpack` reads these).
+
+    Integers: the header (:data:`PACKED_HEADER`: outcome, counter, n_acc, candidates C,
+    pattern stars, refit status, pairs rejected, refit pairs m, weak rows W), sel, order,
+    each candidate's pair count, then per candidate its detections and ids, the refit's
+    detections and ids, the weak rows (W × 20). Floats: per candidate q (4), covariance
+    (9), p_false, residuals; the refit's q, covariance, σ (px) and residuals; the weak
+    p_false (W)."""
+    outcome, sel, counter, cands, order, n_acc, refit, weak = solve_frame(
+        ix, xy, xy_all, M, off, A, c, width, height, view_half, pix, tolerance_rad, state,
+        pats, plen, budget, no_match, n_no_match, max_partials, work, r_min_px, sigma0_px,
+        p_false_max, distinct_rad, refine, consts)
+    c_n, c_det, c_cat, c_q, c_cov, c_res, c_p = cands
+    status, d, k, q, cov, res, sigma_px, rejected = refit
+    wp, wi = weak
+    n_c, m, n_w = len(c_n), len(d), len(wp)
+    pairs = 0
+    for i in range(n_c):
+        pairs += c_n[i]
+    ints = np.empty(PACKED_HEADER + len(sel) + n_acc + n_c + 2 * pairs + 2 * m + 20 * n_w,
+                    dtype=np.int64)
+    floats = np.empty(14 * n_c + pairs + 14 + m + n_w)
+    ints[0], ints[1], ints[2], ints[3], ints[4] = outcome, counter, n_acc, n_c, len(sel)
+    ints[5], ints[6], ints[7], ints[8] = status, rejected, m, n_w
+    o = PACKED_HEADER
+    for i in range(len(sel)):
+        ints[o + i] = sel[i]
+    o += len(sel)
+    for i in range(n_acc):
+        ints[o + i] = order[i]
+    o += n_acc
+    for i in range(n_c):
+        ints[o + i] = c_n[i]
+    o += n_c
+    f = 0
+    for i in range(n_c):
+        for e in range(c_n[i]):
+            ints[o + e], ints[o + c_n[i] + e] = c_det[i, e], ids[c_cat[i, e]]
+            floats[f + 14 + e] = c_res[i, e]
+        o += 2 * c_n[i]
+        for j in range(4):
+            floats[f + j] = c_q[i, j]
+        for j in range(9):
+            floats[f + 4 + j] = c_cov[i, j // 3, j % 3]
+        floats[f + 13] = c_p[i]
+        f += 14 + c_n[i]
+    for e in range(m):
+        ints[o + e], ints[o + m + e] = d[e], ids[k[e]]
+        floats[f + 14 + e] = res[e]
+    o += 2 * m
+    for j in range(4):
+        floats[f + j] = q[j]
+    for j in range(9):
+        floats[f + 4 + j] = cov[j // 3, j % 3]
+    floats[f + 13] = sigma_px
+    f += 14 + m
+    for r in range(n_w):
+        for j in range(20):
+            ints[o + 20 * r + j] = wi[r, j]
+        floats[f + r] = wp[r]
+    return ints, floats
+
+
+def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
+    """:func:`solve_frame_packed`'s arrays read back: (outcome, sel, counter, n_acc, order,
+    candidates, refit, weak) with candidates a list of (detections, ids, q, covariance,
+    residuals, p_false) — detections and ids as lists — refit (status, detections, ids, q,
+    covariance, residuals, σ px, rejected; only the status and rejected count unless the
+    status is 1) and weak (p_false (W,), rows (W, 20)); the arrays are views of ``floats``
+    and ``ints`` (with no weak rows: shared empty arrays, not to be written to).
+
+    >>> import numpy as np
+    >>> ints = np.array([0, 0, 0, 0, 3, -2, 0, 0, 0, 4, 1, 2])
+    >>> unpack(ints, np.zeros(14))[:3]
+    (0, [4, 1, 2], 0)
+    """
+    every = ints.tolist()  # one call: cheaper than slicing the array piece by piece
+    outcome, counter, n_acc, n_c, n_sel, status, rejected, m, n_w = every[:PACKED_HEADER]
+    o = PACKED_HEADER
+    sel = every[o:o + n_sel]
+    o += n_sel
+    order = every[o:o + n_acc]
+    o += n_acc
+    counts = every[o:o + n_c]
+    o += n_c
+    cands, f = [], 0
+    for n in counts:
+        cands.append((every[o:o + n], every[o + n:o + 2 * n], floats[f:f + 4],
+                      floats[f + 4:f + 13].reshape(3, 3), floats[f + 14:f + 14 + n],
+                      floats[f + 13].item()))
+        o += 2 * n
+        f += 14 + n
+    if status == 1:
+        refit = (status, every[o:o + m], every[o + m:o + 2 * m], floats[f:f + 4],
+                 floats[f + 4:f + 13].reshape(3, 3), floats[f + 14:f + 14 + m],
+                 floats[f + 13].item(), rejected)
+    else:
+        refit = (status, [], [], None, None, None, 0.0, rejected)
+    o += 2 * m
+    f += 14 + m
+    if n_w:  # the weak rows close the integers (a NONE frame's too)
+        weak = (floats[f:f + n_w], ints[len(ints) - 20 * n_w:].reshape(n_w, 20))
+    else:
+        weak = (_NO_FLOATS, _NO_ROWS)
+    return outcome, sel, counter, n_acc, order, cands, refit, weak
 
 
 @_jit

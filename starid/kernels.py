@@ -174,8 +174,10 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     first pairs whose second star has some partner in window (1, 2) are extended (the
     rest extend to nothing; that mask is a superset, widened by a few ulps, since the
     link test computes its cosine afresh) — unless that window reaches past the index's
-    ``max_sep``, where the pair list holds no partners. The last level counts against
-    ``max_partials`` too."""
+    ``max_sep``, where the pair list holds no partners. Only the first pairs' stars get
+    their partner lists, and both star sets are bit sets: a frame's first match, in a
+    cache other work has evicted, was mostly writes to catalogue-sized arrays. The last
+    level counts against ``max_partials`` too. ``work[:N]`` is all −1 (left so)."""
     v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
     nbr_idx, nbr_cos, nbr_bin, max_sep, bins = ix[5], ix[6], ix[7], ix[8], ix[9]
     n = cmin.shape[0]
@@ -195,7 +197,15 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
         return empty, 0, 0
     if n_first > max_partials:
         return empty, n_first, 2
-    # window (0, 2) as linked lists per star in work[:N] (first entry, −1 = none),
+    # the stars of the first pairs (bit set S, a few hundred bytes: in the L1 cache);
+    # only they are looked up below, so only their partners in window (0, 2) are listed
+    words = (n_cat + 63) >> 6
+    in_first = np.zeros(words, dtype=np.uint64)
+    for r in range(lo, hi):
+        x, y = pair_i[r], pair_j[r]
+        in_first[x >> 6] |= np.uint64(1) << np.uint64(x & 63)
+        in_first[y >> 6] |= np.uint64(1) << np.uint64(y & 63)
+    # window (0, 2) as linked lists per star of S in work[:N] (first entry, −1 = none),
     # built backwards so that each list runs in pair-list order
     lo2, hi2 = _pair_window(pair_cos, cmin[0, 2], cmax[0, 2], bins, max_sep)
     nxt_e = np.empty(2 * (hi2 - lo2), dtype=np.int64)
@@ -203,9 +213,12 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     e = 0
     for r in range(hi2 - 1, lo2 - 1, -1):
         x, y = pair_i[r], pair_j[r]
-        nxt_e[e], other[e], work[x] = work[x], y, e
-        nxt_e[e + 1], other[e + 1], work[y] = work[y], x, e + 1
-        e += 2
+        if in_first[x >> 6] & (np.uint64(1) << np.uint64(x & 63)):
+            nxt_e[e], other[e], work[x] = work[x], y, e
+            e += 1
+        if in_first[y >> 6] & (np.uint64(1) << np.uint64(y & 63)):
+            nxt_e[e], other[e], work[y] = work[y], x, e
+            e += 1
     # the pair list holds pairs closer than max_sep only: when window (1, 2) reaches
     # beyond, a partner there would be missed, so every first pair is extended
     masked = math.acos(min(max(cmin[1, 2], -1.0), 1.0)) < max_sep - 1e-9
@@ -213,14 +226,17 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
                             max_sep)
     if not masked:
         lo3 = hi3
+    in_12 = np.zeros(words, dtype=np.uint64)  # the stars with a partner in window (1, 2)
     for r in range(lo3, hi3):
-        work[n_cat + pair_i[r]] = work[n_cat + pair_j[r]] = 1
+        x, y = pair_i[r], pair_j[r]
+        in_12[x >> 6] |= np.uint64(1) << np.uint64(x & 63)
+        in_12[y >> 6] |= np.uint64(1) << np.uint64(y & 63)
     cur = np.empty((16, n), dtype=np.int64)
     k = 0
     for swap in range(2):  # every i < j pair, then the same pairs swapped
         for r in range(lo, hi):
             a, b = (pair_j[r], pair_i[r]) if swap else (pair_i[r], pair_j[r])
-            if masked and work[n_cat + b] < 0:
+            if masked and not in_12[b >> 6] & (np.uint64(1) << np.uint64(b & 63)):
                 continue
             e = work[a]
             while e >= 0:
@@ -235,10 +251,8 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
                     cur = _grown(cur, k)
                 cur[k, 0], cur[k, 1], cur[k, 2] = a, b, s
                 k += 1
-    for r in range(lo2, hi2):
+    for r in range(lo, hi):  # the lists' heads back to −1 (only S's were set)
         work[pair_i[r]] = work[pair_j[r]] = -1
-    for r in range(lo3, hi3):
-        work[n_cat + pair_i[r]] = work[n_cat + pair_j[r]] = -1
     nb = nbr_bin.shape[1] - 1
     step = max_sep / nb
     for m in range(3, n):  # further stars: the first star's neighbour row

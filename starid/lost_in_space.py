@@ -352,15 +352,16 @@ class LostInSpace:
         run = Search()
         while True:
             try:
-                outcome, sel, counter, cands, order, n_acc, refit, (wp, wi) = \
-                    frame_kernels.solve_frame(
-                        self._ix, xy, refit_xy, *self._frame_camera(cam), self.tolerance_rad,
-                        state, pats, plen, budget, no_match, n_no_match, work,
-                        self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
-                        self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)
+                ints, floats = frame_kernels.solve_frame_packed(
+                    self.ids, self._ix, xy, refit_xy, *self._frame_camera(cam),
+                    self.tolerance_rad, state, pats, plen, budget, no_match, n_no_match,
+                    work, self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
+                    self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)
             except BaseException:
                 self._drop_scratch()
                 raise
+            outcome, sel, counter, n_acc, order, cands, refit, (wp, wi) = \
+                frame_kernels.unpack(ints, floats)
             if len(wp):
                 run.weak_rows.append((wp, wi, paths))
             if outcome != frame_kernels.NONE or full or state[0] < len(pats):
@@ -376,14 +377,12 @@ class LostInSpace:
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
             return self._unsolved(xy, [cam], None, None, run), run.tried, False
-        n, det, cat, q, cov, res, p = cands
-        ids = self.ids
-        found = [Candidate(q_cam_icrs=q[i], matches=list(zip(
-            det[i, :n[i]].tolist(), ids[cat[i, :n[i]]].tolist(), strict=True)),
-            residuals_rad=res[i, :n[i]], p_false=float(p[i]), n_pattern=len(sel),
-            camera=cam, covariance=cov[i], _projector=self._project) for i in range(len(n))]
+        found = [Candidate(q_cam_icrs=q, matches=list(zip(d, h, strict=True)),
+                           residuals_rad=res, p_false=p, n_pattern=len(sel), camera=cam,
+                           covariance=cov, _projector=self._project)
+                 for d, h, q, cov, res, p in cands]
         path = paths[pos]
-        accepted = [found[i] for i in order.tolist()]
+        accepted = [found[i] for i in order]
         if outcome == frame_kernels.SEVERAL:
             best, why = resolve_by_evidence(accepted)
             if best is None:
@@ -391,25 +390,24 @@ class LostInSpace:
                                 matching_counter=counter, path=path,
                                 candidates=accepted), run.tried, False
             sol = replace(self._solution(best, counter, path, found), note=why)
-            return ((self._refine(sol, xy_all) if xy_all is not None else sol), run.tried,
-                    False)
+            return ((self._refine(sol, self._outside_as_nan(xy_all, len(xy)))
+                     if xy_all is not None else sol), run.tried, False)
         best = accepted[0]
         status = refit[0]
         if status == 1:
-            _, d, k, rq, rcov, rres, sigma_px, rejected = refit
+            _, d, h, rq, rcov, rres, sigma_px, rejected = refit
             done = {} if t0 is None else {"time_s": time.perf_counter() - t0,
                                           "n_detections": len(xy), "patterns_tried": run.tried}
             return Solution(
-                True, "", q_cam_icrs=rq, matches=list(zip(d.tolist(), ids[k].tolist(),
-                                                          strict=True)),
+                True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
                 matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
-                candidates=found, residuals_rad=rres, camera=cam, sigma_px=float(sigma_px),
+                candidates=found, residuals_rad=rres, camera=cam, sigma_px=sigma_px,
                 note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
                 **done), run.tried, t0 is not None
         sol = self._solution(best, counter, path, found)
         if xy_all is not None and (status == -1 or not refine):
             # a cone the refit left, a degenerate fit, or a fitted camera: in Python
-            sol = self._refine(sol, xy_all)
+            sol = self._refine(sol, self._outside_as_nan(xy_all, len(xy)))
         return sol, run.tried, False
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],

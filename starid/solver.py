@@ -296,8 +296,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             sol = self._refine(sol, self._all_xy(detections, xy))
             return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                            patterns_tried=1)
-        return self._solve_refined(xy, cams or self._focal_guesses(),
-                                   self._all_xy(detections, xy), t0)
+        cams = cams or self._focal_guesses()
+        return self._solve_refined(
+            xy, cams, self._all_xy(detections, xy, not self._frame_path(cams)), t0)
 
     def _focal_guesses(self) -> list[Camera]:
         return [self.camera.scaled(k) if k != 1.0 else self.camera
@@ -489,10 +490,13 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             return xy, f"bad input: duplicate centroids at rows {a} and {b}"
         return use, ""
 
-    def _all_xy(self, detections, use: NDArray) -> NDArray[np.float64]:
+    def _all_xy(self, detections, use: NDArray, mark_outside: bool = True,
+                ) -> NDArray[np.float64]:
         """Every detection (not only the brightest ``max_detections`` the search uses),
-        in the order of ``use``, for the final fit; positions outside the frame dropped
-        from the end."""
+        in the order of ``use``, for the final fit. Those past ``use`` that lie outside
+        the frame become NaN, which the fit leaves out: dropping them instead shifted
+        every later row, so matches named the wrong detections. ``mark_outside`` False:
+        as given (the one-call frame's refit leaves them out itself)."""
         if len(detections.xy if hasattr(detections, "xy") else detections) <= len(use):
             return use
         if hasattr(detections, "xy"):
@@ -504,9 +508,17 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             xy = arr[:, :2]
         if len(xy) <= len(use):
             return use
-        rest = xy[len(use):]
-        rest = rest[self.camera.in_frame(rest)]
-        return np.concatenate([use, rest])
+        return self._outside_as_nan(xy, len(use)) if mark_outside else xy
+
+    def _outside_as_nan(self, xy_all: NDArray, n_use: int) -> NDArray[np.float64]:
+        """``xy_all`` with the rows past ``n_use`` that lie outside the frame as NaN (a copy
+        when there are any: the caller's array stays as it was)."""
+        outside = ~self.camera.in_frame(xy_all[n_use:])
+        if not outside.any():
+            return xy_all
+        xy_all = xy_all.copy()
+        xy_all[n_use:][outside] = np.nan
+        return xy_all
 
     def _match(self, pattern: Pattern, work_budget: int | None = None) -> NDArray[np.int64]:
         work = self.work_budget if work_budget is None else work_budget

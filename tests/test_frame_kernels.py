@@ -136,3 +136,98 @@ def test_a_fitted_camera_is_refitted_on_every_detection(cat):
 def test_a_tolerance_that_is_not_an_angle_is_refused(cat, tol):
     with pytest.raises(ValueError, match="tolerance_deg"):
         starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), tolerance_deg=tol)
+
+
+@pytest.mark.parametrize("path", ["one call", "pieces", "fitted camera"])
+def test_a_detection_outside_the_frame_beyond_the_search_keeps_the_others_rows(cat, path):
+    """Detections past ``max_detections`` only join the final refit, and one outside the
+    frame is left out of it — even where a catalogue star lies just past the edge — but
+    every match must still name the caller's row: leaving them out once shifted every
+    later detection's index by one, pairing stars with detections hundreds of pixels
+    away."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam, max_detections=10,
+                           fit_camera="focal" if path == "fitted camera" else "auto")
+    solver._frame_kernel = path != "pieces"  # a fitted camera: refitted in Python
+    rng = np.random.default_rng(8)
+    frames = 0
+    while frames < 3:
+        xy, q = sky_frame(cat, cam, rng)
+        pxy, _, _ = solver._project_idx(q, cam, margin_rad=0.01)
+        edge = pxy[~cam.in_frame(pxy) & cam.in_frame(pxy, margin=-2.0)]
+        if len(xy) < 16 or not len(edge):
+            continue
+        frames += 1
+        # row 12 far left of the frame, row 13 on a star just past an edge
+        xy = np.insert(xy, 12, [[-400.0, 100.0], edge[0]], axis=0)
+        sol = solver.solve(xy)
+        assert sol.ok
+        ids, pred = solver.stars_in_view(sol.q_cam_icrs)
+        at = dict(zip(ids.tolist(), pred, strict=True))
+        assert not [d for d, _ in sol.matches if d in (12, 13)]
+        far = [(d, h) for d, h in sol.matches if np.hypot(*(xy[d] - at[h])) > 3.0]
+        assert not far
+        assert any(d > 13 for d, _ in sol.matches)  # rows after them matched, by their rows
+
+
+def test_the_packed_result_reads_back_as_the_kernels_own(cat, monkeypatch):
+    """solve_frame_packed hands solve_frame's result to Python as two flat arrays; unpack
+    must give back every field — pairs with the catalogue's ids, weak rows — for frames
+    identified, refitted with pairs rejected, and weak."""
+    from adfusion.starid import frame_kernels as fk
+    calls = []
+    real = fk.solve_frame_packed
+
+    def spy(*a):
+        mutable = (13, 17, 18)  # state, no_match, n_no_match: the kernel writes them
+        calls.append([x.copy() if i in mutable else x for i, x in enumerate(a)])
+        return real(*a)
+
+    monkeypatch.setattr(fk, "solve_frame_packed", spy)
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam, centroid_sigma_px=2.0)
+    rng = np.random.default_rng(12)
+    seen = set()
+    for k in range(30):
+        if seen == {"refitted", "rejected", "weak"}:
+            break
+        xy, _ = sky_frame(cat, cam, rng, sigma_px=2.0)
+        if k == 0:  # noise
+            xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (9, 2))
+        calls.clear()
+        solver.solve(xy)
+        for a in calls:
+            ids, args = a[0], a[1:]
+            fresh = [x.copy() if i in (12, 16, 17) else x for i, x in enumerate(args)]
+            outcome, sel, counter, n_acc, order, cands, refit, (wp, wi) = fk.unpack(
+                *real(ids, *fresh))
+            fresh = [x.copy() if i in (12, 16, 17) else x for i, x in enumerate(args)]
+            o2, sel2, c2, cands2, order2, n_acc2, refit2, (wp2, wi2) = fk.solve_frame(*fresh)
+            assert (outcome, sel, counter, n_acc, order) == (
+                o2, sel2.tolist(), c2, n_acc2, order2.tolist())
+            n, det, cat_rows, q, cov, res, p = cands2
+            assert len(cands) == len(n)
+            for i, (d, h, qi, ci, ri, pi) in enumerate(cands):
+                assert d == det[i, :n[i]].tolist()
+                assert h == ids[cat_rows[i, :n[i]]].tolist()
+                np.testing.assert_array_equal(qi, q[i])
+                np.testing.assert_array_equal(ci, cov[i])
+                np.testing.assert_array_equal(ri, res[i, :n[i]])
+                assert pi == p[i]
+            assert refit[0] == refit2[0] and refit[7] == refit2[7]
+            if refit[0] == 1:
+                assert refit[1] == refit2[1].tolist()
+                assert refit[2] == ids[refit2[2]].tolist()
+                for j in (3, 4, 5):
+                    np.testing.assert_array_equal(refit[j], refit2[j])
+                assert refit[6] == refit2[6]
+                seen.add("rejected" if refit[7] else "refitted")
+            np.testing.assert_array_equal(wp, wp2)
+            for r, r2 in zip(wi, wi2, strict=True):  # pattern, guess, trial, n, sel, assignment
+                n_r = r2[3]
+                assert r[:4].tolist() == r2[:4].tolist()
+                assert r[4:4 + n_r].tolist() == r2[4:4 + n_r].tolist()
+                assert r[12:12 + n_r].tolist() == r2[12:12 + n_r].tolist()
+            if len(wp):
+                seen.add("weak")
+    assert seen == {"refitted", "rejected", "weak"}

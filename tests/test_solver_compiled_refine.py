@@ -63,9 +63,9 @@ def test_an_uncertain_camera_keeps_the_python_refit(cat, monkeypatch):
     refit's own, or the one-call frame's that runs it)."""
     from adfusion.starid import frame_kernels, kernels
     calls = []
-    real, real_frame = kernels.refine_pinhole, frame_kernels.solve_frame
+    real, real_frame = kernels.refine_pinhole, frame_kernels.solve_frame_packed
     monkeypatch.setattr(kernels, "refine_pinhole", lambda *a: calls.append(1) or real(*a))
-    monkeypatch.setattr(frame_kernels, "solve_frame",
+    monkeypatch.setattr(frame_kernels, "solve_frame_packed",
                         lambda *a: calls.append(a[-2]) or real_frame(*a))  # a[-2]: refine
     xy, _ = sky_frame(cat, starid.Camera.pinhole(1024, 768, 15.2), np.random.default_rng(3))
     s = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), fov_error_deg=0.6,
