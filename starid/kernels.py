@@ -35,10 +35,14 @@ import math
 import numba
 import numpy as np
 from adfusion.starid.verify import DENSITY_SAFETY
+from numba import types
+from numba.typed import Dict
 
-__all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", "search"]
+__all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", "search",
+           "triangle_store"]
 
 _jit = numba.njit(cache=True, nogil=True)
+_ROWS = types.int64[:, :]  # the type of search()'s kept first-three-star assignments
 
 # search() status (state[4]) and budget-note kinds (state[5])
 DONE, STRONG = 0, 1
@@ -178,25 +182,39 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
     their partner lists, and both star sets are bit sets: a frame's first match, in a
     cache other work has evicted, was mostly writes to catalogue-sized arrays. The last
     level counts against ``max_partials`` too. ``work[:N]`` is all −1 (left so)."""
-    v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
-    nbr_idx, nbr_cos, nbr_bin, max_sep, bins = ix[5], ix[6], ix[7], ix[8], ix[9]
     n = cmin.shape[0]
-    n_cat = len(v)
-    lo, hi = _pair_window(pair_cos, cmin[0, 1], cmax[0, 1], bins, max_sep)
-    n_first = 2 * (hi - lo)
-    empty = np.zeros((0, n), dtype=np.int64)
     if n == 2:
+        pair_i, pair_j, pair_cos, max_sep, bins = ix[1], ix[2], ix[3], ix[8], ix[9]
+        lo, hi = _pair_window(pair_cos, cmin[0, 1], cmax[0, 1], bins, max_sep)
+        n_first = 2 * (hi - lo)
         if n_first > max_partials:
-            return empty, n_first, 2
+            return np.zeros((0, 2), dtype=np.int64), n_first, 2
         cur = np.empty((n_first, 2), dtype=np.int64)
         for r in range(lo, hi):  # every i < j pair, then the same pairs swapped
             cur[r - lo, 0], cur[r - lo, 1] = pair_i[r], pair_j[r]
             cur[r - lo + hi - lo, 0], cur[r - lo + hi - lo, 1] = pair_j[r], pair_i[r]
         return cur, 0, 0
+    tri, over, level = _triangles(ix, cmin, cmax, chirality, max_partials, work)
+    if over > 0:
+        return np.zeros((0, n), dtype=np.int64), over, level
+    return _extended(ix, tri, cmin, cmax, max_partials)
+
+
+@_jit
+def _triangles(ix, cmin, cmax, chirality, max_partials, work):
+    """The first three levels of :func:`match`: the assignments (K, 3) of the pattern's
+    first three stars — which depend only on their three windows and the mirror sign, so
+    :func:`search` reuses them for every pattern that starts with the same three
+    detections — and (over, level) as :func:`match` returns them for level 2."""
+    v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
+    max_sep, bins = ix[8], ix[9]
+    n_cat = len(v)
+    lo, hi = _pair_window(pair_cos, cmin[0, 1], cmax[0, 1], bins, max_sep)
+    n_first = 2 * (hi - lo)
     if n_first == 0:
-        return empty, 0, 0
+        return np.zeros((0, 3), dtype=np.int64), 0, 0
     if n_first > max_partials:
-        return empty, n_first, 2
+        return np.zeros((0, 3), dtype=np.int64), n_first, 2
     # the stars of the first pairs (bit set S, a few hundred bytes: in the L1 cache);
     # only they are looked up below, so only their partners in window (0, 2) are listed
     words = (n_cat + 63) >> 6
@@ -231,7 +249,7 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
         x, y = pair_i[r], pair_j[r]
         in_12[x >> 6] |= np.uint64(1) << np.uint64(x & 63)
         in_12[y >> 6] |= np.uint64(1) << np.uint64(y & 63)
-    cur = np.empty((16, n), dtype=np.int64)
+    cur = np.empty((16, 3), dtype=np.int64)
     k = 0
     for swap in range(2):  # every i < j pair, then the same pairs swapped
         for r in range(lo, hi):
@@ -253,6 +271,21 @@ def match(ix, cmin, cmax, chirality, max_partials, work):
                 k += 1
     for r in range(lo, hi):  # the lists' heads back to −1 (only S's were set)
         work[pair_i[r]] = work[pair_j[r]] = -1
+    out = np.empty((k, 3), dtype=np.int64)
+    for r in range(k):
+        out[r, 0], out[r, 1], out[r, 2] = cur[r, 0], cur[r, 1], cur[r, 2]
+    return out, 0, 0
+
+
+@_jit
+def _extended(ix, cur, cmin, cmax, max_partials):
+    """The levels of :func:`match` past the third: the assignments ``cur`` (K, 3) of the
+    first three stars extended, star by star, through the first star's neighbour row;
+    (rows (K', n), over, level) as :func:`match` returns them. ``cur`` is not written."""
+    v, nbr_idx, nbr_cos, nbr_bin, max_sep = ix[0], ix[5], ix[6], ix[7], ix[8]
+    n = cmin.shape[0]
+    k = len(cur)
+    empty = np.zeros((0, n), dtype=np.int64)
     nb = nbr_bin.shape[1] - 1
     step = max_sep / nb
     for m in range(3, n):  # further stars: the first star's neighbour row
@@ -650,8 +683,15 @@ def pattern_windows(pat, b_all, tolerance_rad, rel_tol):
 
 
 @_jit
+def triangle_store():
+    """An empty store of a frame's first-three-star assignments for :func:`search` (keys:
+    guess, detections and mirror sign; values: row 0 (over, level, 0), then the rows)."""
+    return Dict.empty(key_type=types.int64, value_type=_ROWS)
+
+
+@_jit
 def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, tolerance_rad,
-           rel_tol, radius, floor, p_false_max, max_partials, work):
+           rel_tol, radius, floor, p_false_max, max_partials, work, triangles):
     """Walk the pattern list ``pats`` (P, 8; ``plen`` stars each) × focal guesses (the
     directions ``b_cams`` (C, N, 3), ``radius`` and ``floor`` per guess; each pattern's
     windows :func:`pattern_windows` of ``tolerance_rad`` and ``rel_tol``) as
@@ -665,8 +705,15 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
     trial budget reached at ``a`` trials), and the no-match sets (bit masks per guess).
     Returns the stopping trial's (sel, assignments, quick checks) and the weak candidates
     met on the way: p_false (W,) and (W, 20) rows of pattern, guess, trial, n, sel (8),
-    assignment (8). ``work`` is :func:`scratch` (all −1; left so)."""
+    assignment (8). ``work`` is :func:`scratch` (all −1; left so).
+
+    Each pattern is matched as :func:`match` matches it, with its first three stars'
+    assignments (:func:`_triangles`) kept in ``triangles`` (:func:`triangle_store`, one per
+    frame, for every call of its walk): a pattern that starts with the same three
+    detections at the same guess and mirror sign — most Not-Modus trials — extends them
+    (:func:`_extended`) instead of scanning the pair list again."""
     n_cams = b_cams.shape[0]
+    n_det = b_cams.shape[1]
     pos, ci, tried, first = state[0], state[1], state[2], state[3]
     wp = np.empty((16, 1))
     wi = np.empty((16, 20), dtype=np.int64)  # pattern, guess, trial, n, sel, assignment
@@ -689,7 +736,23 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
         if not skip:
             sel, a, t, lo, hi, chir = pattern_windows(pat, b_cams[ci], tolerance_rad,
                                                       rel_tol)
-            rows, over, level = match(ix, lo, hi, chir, max_partials, work)
+            # the first three stars' assignments, kept per (guess, detections, mirror
+            # sign): most trials after the first drop or swap a later star (Not-Modus)
+            key = (((ci * n_det + sel[0]) * n_det + sel[1]) * n_det + sel[2]) * 3 + chir + 1
+            if key in triangles:
+                tri = triangles[key]
+            else:
+                rows3, over, level = _triangles(ix, lo, hi, chir, max_partials, work)
+                tri = np.empty((len(rows3) + 1, 3), dtype=np.int64)
+                tri[0, 0], tri[0, 1], tri[0, 2] = over, level, 0  # row 0: over, level
+                for r in range(len(rows3)):
+                    tri[r + 1, 0], tri[r + 1, 1], tri[r + 1, 2] = rows3[r, 0], rows3[r, 1], \
+                        rows3[r, 2]
+                triangles[key] = tri
+            if tri[0, 0] > 0:
+                rows, over, level = np.zeros((0, n), dtype=np.int64), tri[0, 0], tri[0, 1]
+            else:
+                rows, over, level = _extended(ix, tri[1:], lo, hi, max_partials)
             if over > 0:
                 state[5], state[6], state[7] = NOTE_WORK, over, level
             else:
@@ -724,7 +787,6 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
         if ci == n_cams:
             pos, ci = pos + 1, 0
     state[0], state[1], state[2], state[3], state[4] = pos, ci, tried, first, DONE
-    n_det = b_cams.shape[1]
     q = (np.zeros(0, dtype=np.bool_), np.zeros(0), np.zeros((0, 3, 3)), np.zeros(0),
          np.zeros((0, n_det), dtype=np.int64), np.zeros((0, n_det), dtype=np.int64),
          np.zeros(0, dtype=np.int64))

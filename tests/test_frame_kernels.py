@@ -231,3 +231,58 @@ def test_the_packed_result_reads_back_as_the_kernels_own(cat, monkeypatch):
             if len(wp):
                 seen.add("weak")
     assert seen == {"refitted", "rejected", "weak"}
+
+
+def test_the_search_keeps_first_three_star_assignments_without_changing_a_trial(cat):
+    """kernels.search reuses a pattern's first three stars' assignments for every later
+    pattern that starts with the same three detections (most Not-Modus trials): its walk
+    must stop at the trial, with the rows and counts, that matching every pattern afresh
+    (kernels.match) gives — on frames with false stars, where the reuse happens."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    rng = np.random.default_rng(21)
+    pix = cam.pixel_scale_rad
+    radius = np.array([solver._match_radius_px() * pix])
+    floor = np.array([np.sqrt(2.0) * solver.centroid_sigma_px * pix])
+    reused = 0
+    for _ in range(8):
+        xy, _ = sky_frame(cat, cam, rng, n_false=8)
+        xy = np.ascontiguousarray(xy[: solver.max_detections])
+        b = cam.pixels_to_vectors(xy)
+        pats, plen, _ = solver._pattern_list(len(xy), True)
+        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+        no_match = np.zeros((1, solver.max_patterns + 2), dtype=np.int64)
+        n_no_match = np.zeros(1, dtype=np.int64)
+        sel, rows, _, _, _ = kernels.search(
+            solver._ix, state, pats, plen, 200, no_match, n_no_match, b[None],
+            solver.tolerance_rad, 0.0, radius, floor, solver.p_false_max,
+            solver.work_budget, solver._scratch(), kernels.triangle_store())
+        # the same walk, every pattern matched afresh
+        masks, seen, stop = [], set(), None
+        for p in range(min(len(pats), 200)):
+            pat = pats[p, :plen[p]]
+            mask = sum(1 << int(i) for i in pat)
+            if any(m & mask == m for m in masks):
+                continue
+            s2, ang, tol, lo, hi, chir = kernels.pattern_windows(pat, b, solver.tolerance_rad,
+                                                                 0.0)
+            key = (*s2[:3].tolist(), chir)
+            reused += key in seen
+            seen.add(key)
+            r2, over, _ = kernels.match(solver._ix, lo, hi, chir, solver.work_budget,
+                                        solver._scratch())
+            if over:
+                continue
+            if not len(r2):
+                masks.append(mask)
+                continue
+            q = kernels.quick_checks(solver._ix, b, s2, r2, ang, tol, chir != 0, p + 1,
+                                     radius[0], floor[0])
+            if any(ok and pf <= solver.p_false_max for ok, pf in zip(q[0], q[1],
+                                                                      strict=True)):
+                stop = (p, s2.tolist(), r2.tolist())
+                break
+        assert stop is not None and state[4] == kernels.STRONG
+        assert (state[0], sel.tolist(), rows.tolist()) == stop
+        assert state[2] == stop[0] + 1  # trials counted alike
+    assert reused > 0
