@@ -4,8 +4,9 @@ The replay-inputs table comes from ``benchmarks/results/replay_inputs.json``, wh
 ``python -P benchmarks/bench_replay_inputs.py --rounds 3`` writes, and the closed-loop one
 from ``benchmarks/results/bench_acs.json`` (``python -P benchmarks/bench_acs.py``), the
 lost-in-space one from ``benchmarks/results/starid.json`` (``adfusion bench starid ...
---json benchmarks/results/starid.json``, the command in :func:`figures_block`); none is run
-from here.
+--json benchmarks/results/starid.json``, the command in :func:`figures_block`; the same run of
+the code before a change, on the same machine, as ``starid-before.json`` adds its ratios);
+none is run from here.
 
 One command runs the three benchmarks, keeps their JSON under ``benchmarks/results/`` and the
 sweep plots under ``docs/img/``, and rewrites the block of ``docs/benchmarks.md`` between the
@@ -320,26 +321,40 @@ def fuzz_section(doc: dict[str, Any], command: str) -> str:
     return "\n".join(lines)
 
 
-def starid_section(doc: dict[str, Any], command: str) -> str:
+def _commit(doc: dict[str, Any]) -> str | None:
+    code = doc.get("code") or {}
+    commit = code.get("commit") or code.get("git_commit")
+    return str(commit)[:7] if commit else None
+
+
+def starid_section(doc: dict[str, Any], command: str,
+                   before: dict[str, Any] | None = None) -> str:
     """Lost-in-space against the peers in one process (``adfusion bench starid --json``):
-    availability, errors and CPU time per condition, and the ratios against each peer."""
+    availability, errors and CPU time per condition, and the ratios against each peer —
+    and, given ``before`` (the same run of an earlier commit on the same machine:
+    ``benchmarks/results/starid-before.json``), its ratios beside them."""
     peers = [n for n in doc["solvers"] if n != "ours"]
-    commit = (doc.get("code") or {}).get("commit")
+    commit = _commit(doc)
+    if before is not None and _machine(before) != _machine(doc):
+        before = None  # ratios from another machine do not compare
     load = doc["machine"].get("loadavg")
     lines = [
         "### Lost-in-space against the peers, interleaved",
         "",
         f"`{command}` ({doc['config']['frames']} frames a condition"
-        + (f", code `{str(commit)[:7]}`" if commit else "")
+        + (f", code `{commit}`" if commit else "")
         + (f", load average {load[0]:.1f}" if load else "") + f"; {_machine(doc)}): the "
         "solvers interleaved frame by frame in one process on the same centroid lists; "
         "CPU time of each solve (`time.thread_time`), ms.",
         "",
         "| condition | avail % (err) ours | " + " | ".join(
             f"avail % (err) {p}" for p in peers) + " | ours median / p95 | " + " | ".join(
-            f"{p} median / p95 | ours ÷ {p} median / p95" for p in peers) + " |",
-        "|---" * (3 + 3 * len(peers)) + "|",
+            f"{p} median / p95 | ours ÷ {p} median / p95" for p in peers)
+        + (f" | before (`{_commit(before)}`) ÷ {peers[0]} median / p95"
+           if before and peers else "") + " |",
+        "|---" * (3 + 3 * len(peers) + (1 if before and peers else 0)) + "|",
     ]
+    earlier = {c["name"]: c for c in before["conditions"]} if before and peers else {}
     for c in doc["conditions"]:
         r = c["results"]
         row = [c["name"], f"{r['ours']['availability_pct']:.1f} ({r['ours']['n_wrong']})"]
@@ -351,6 +366,11 @@ def starid_section(doc: dict[str, Any], command: str) -> str:
             rm = c["cpu_ratio_ours_over_peer"].get(p)
             r95 = c["cpu_p95_ratio_ours_over_peer"].get(p)
             row.append(f"{tp['median']:.3f} / {tp['p95']:.3f}")
+            row.append(f"{rm:.2f} / {r95:.2f}" if rm and r95 else "—")
+        if before and peers:
+            e = earlier.get(c["name"])
+            rm = e and e["cpu_ratio_ours_over_peer"].get(peers[0])
+            r95 = e and e["cpu_p95_ratio_ours_over_peer"].get(peers[0])
             row.append(f"{rm:.2f} / {r95:.2f}" if rm and r95 else "—")
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
@@ -396,7 +416,7 @@ def figures_block(docs: dict[str, Any], commands: dict[str, str] | None = None) 
     if docs.get("bench_acs"):
         parts.append(acs_section(docs["bench_acs"], cmd["bench_acs"]))
     if docs.get("starid"):
-        parts.append(starid_section(docs["starid"], cmd["starid"]))
+        parts.append(starid_section(docs["starid"], cmd["starid"], docs.get("starid-before")))
     if docs.get("fuzz"):
         parts.append(fuzz_section(docs["fuzz"], cmd["fuzz"]))
     parts.append(END)
@@ -466,7 +486,8 @@ def main(argv: list[str] | None = None) -> int:
         doc["replay"] = bench_filters.replay_throughput(20.0)
         (RESULTS / "filters.json").write_text(json.dumps(doc, indent=1) + "\n")
     docs: dict[str, Any] = {}
-    for name in ("sweep", "renken", "filters", "replay_inputs", "bench_acs", "fuzz", "starid"):
+    for name in ("sweep", "renken", "filters", "replay_inputs", "bench_acs", "fuzz", "starid",
+                 "starid-before"):
         f = RESULTS / f"{name}.json"
         docs[name] = json.loads(f.read_text()) if f.exists() else None
     cmds = {"sweep": (docs["sweep"] or {}).get("command", sweep_cmd)}
