@@ -274,9 +274,9 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     Integers: the header (:data:`PACKED_HEADER`: outcome, counter, n_acc, candidates C,
     pattern stars, refit status, pairs rejected, refit pairs m, weak rows W), sel, order,
     each candidate's pair count, then per candidate its detections and ids, the refit's
-    detections and ids, the weak rows (W × 20). Floats: per candidate q (4), covariance
-    (9), p_false, residuals; the refit's q, covariance, σ (px) and residuals; the weak
-    p_false (W)."""
+    detections and ids, the weak rows (W × 20). Floats: each candidate's p_false and the
+    refit's σ (px); per candidate q (4), covariance (9), residuals; the refit's q,
+    covariance and residuals; the weak p_false (W)."""
     outcome, sel, counter, cands, order, n_acc, refit, weak = solve_frame(
         ix, xy, xy_all, M, off, A, c, width, height, view_half, pix, tolerance_rad, state,
         pats, plen, budget, no_match, n_no_match, max_partials, work, r_min_px, sigma0_px,
@@ -290,7 +290,7 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
         pairs += c_n[i]
     ints = np.empty(PACKED_HEADER + len(sel) + n_acc + n_c + 2 * pairs + 2 * m + 20 * n_w,
                     dtype=np.int64)
-    floats = np.empty(14 * n_c + pairs + 14 + m + n_w)
+    floats = np.empty(n_c + 1 + 13 * n_c + pairs + 13 + m + n_w)
     ints[0], ints[1], ints[2], ints[3], ints[4] = outcome, counter, n_acc, n_c, len(sel)
     ints[5], ints[6], ints[7], ints[8] = status, rejected, m, n_w
     o = PACKED_HEADER
@@ -303,28 +303,29 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     for i in range(n_c):
         ints[o + i] = c_n[i]
     o += n_c
-    f = 0
+    for i in range(n_c):  # the scalars first: Python reads them in one call
+        floats[i] = c_p[i]
+    floats[n_c] = sigma_px
+    f = n_c + 1
     for i in range(n_c):
         for e in range(c_n[i]):
             ints[o + e], ints[o + c_n[i] + e] = c_det[i, e], ids[c_cat[i, e]]
-            floats[f + 14 + e] = c_res[i, e]
+            floats[f + 13 + e] = c_res[i, e]
         o += 2 * c_n[i]
         for j in range(4):
             floats[f + j] = c_q[i, j]
         for j in range(9):
             floats[f + 4 + j] = c_cov[i, j // 3, j % 3]
-        floats[f + 13] = c_p[i]
-        f += 14 + c_n[i]
+        f += 13 + c_n[i]
     for e in range(m):
         ints[o + e], ints[o + m + e] = d[e], ids[k[e]]
-        floats[f + 14 + e] = res[e]
+        floats[f + 13 + e] = res[e]
     o += 2 * m
     for j in range(4):
         floats[f + j] = q[j]
     for j in range(9):
         floats[f + 4 + j] = cov[j // 3, j % 3]
-    floats[f + 13] = sigma_px
-    f += 14 + m
+    f += 13 + m
     for r in range(n_w):
         for j in range(20):
             ints[o + 20 * r + j] = wi[r, j]
@@ -354,21 +355,22 @@ def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
     o += n_acc
     counts = every[o:o + n_c]
     o += n_c
-    cands, f = [], 0
-    for n in counts:
+    scalars = floats[:n_c + 1].tolist()
+    cands, f = [], n_c + 1
+    for i, n in enumerate(counts):
         cands.append((every[o:o + n], every[o + n:o + 2 * n], floats[f:f + 4],
-                      floats[f + 4:f + 13].reshape(3, 3), floats[f + 14:f + 14 + n],
-                      floats[f + 13].item()))
+                      floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + n],
+                      scalars[i]))
         o += 2 * n
-        f += 14 + n
+        f += 13 + n
     if status == 1:
         refit = (status, every[o:o + m], every[o + m:o + 2 * m], floats[f:f + 4],
-                 floats[f + 4:f + 13].reshape(3, 3), floats[f + 14:f + 14 + m],
-                 floats[f + 13].item(), rejected)
+                 floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + m],
+                 scalars[n_c], rejected)
     else:
         refit = (status, [], [], None, None, None, 0.0, rejected)
     o += 2 * m
-    f += 14 + m
+    f += 13 + m
     if n_w:  # the weak rows close the integers (a NONE frame's too)
         weak = (floats[f:f + n_w], ints[len(ints) - 20 * n_w:].reshape(n_w, 20))
     else:

@@ -40,6 +40,8 @@ _REFIT_CONSTANTS = (_REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR, float(_PRI
 
 # the search's work arrays, one per thread (LostInSpace._scratch)
 _SCRATCH = threading.local()
+# kernels.search's state at a frame's first trial (copied: cheaper than building it)
+_STATE0 = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
 
 #: the best candidate wins over the others when its p_false is this many times smaller
 EVIDENCE_RATIO = 1e6
@@ -338,7 +340,7 @@ class LostInSpace:
         in the kernel, has when ``t0`` is given)."""
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
-        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+        state = _STATE0.copy()
         no_match = np.zeros((1, self.max_patterns + 2), dtype=np.int64)
         n_no_match = np.zeros(1, dtype=np.int64)
         budget = self._trial_budget(1, per_guess)
@@ -349,7 +351,7 @@ class LostInSpace:
         # the detections the kernel refits on (unused without a refit); xy_all itself stays
         # what the Python refit gets (None: none, as _solve_at returns the verified fit)
         refit_xy = np.ascontiguousarray(xy_all, dtype=np.float64) if refine else xy
-        run = Search()
+        weak_rows = []
         while True:
             try:
                 ints, floats = frame_kernels.solve_frame_packed(
@@ -363,20 +365,21 @@ class LostInSpace:
             outcome, sel, counter, n_acc, order, cands, refit, (wp, wi) = \
                 frame_kernels.unpack(ints, floats)
             if len(wp):
-                run.weak_rows.append((wp, wi, paths))
+                weak_rows.append((wp, wi, paths))
             if outcome != frame_kernels.NONE or full or state[0] < len(pats):
                 break
             # Renken's patterns failed: on to the combinations (the same list, longer)
             full = True
             pats, plen, paths = self._pattern_list(len(xy), full)
-        pos, _, run.tried, first, _, note, a, b = state.tolist()
+        pos, _, tried, first, _, note, a, b = state.tolist()
         if outcome == frame_kernels.NONE:
+            run = Search(tried=tried, weak_rows=weak_rows)
             run.first_counter = None if first < 0 else first
             if note == kernels.NOTE_WORK:
                 run.budget_note = f"work budget exceeded ({a} partial assignments at level {b})"
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
-            return self._unsolved(xy, [cam], None, None, run), run.tried, False
+            return self._unsolved(xy, [cam], None, None, run), tried, False
         found = [Candidate(q_cam_icrs=q, matches=list(zip(d, h, strict=True)),
                            residuals_rad=res, p_false=p, n_pattern=len(sel), camera=cam,
                            covariance=cov, _projector=self._project)
@@ -388,27 +391,27 @@ class LostInSpace:
             if best is None:
                 return Solution(False, f"ambiguous: {n_acc} distinct attitudes verified",
                                 matching_counter=counter, path=path,
-                                candidates=accepted), run.tried, False
+                                candidates=accepted), tried, False
             sol = replace(self._solution(best, counter, path, found), note=why)
             return ((self._refine(sol, self._outside_as_nan(xy_all, len(xy)))
-                     if xy_all is not None else sol), run.tried, False)
+                     if xy_all is not None else sol), tried, False)
         best = accepted[0]
         status = refit[0]
         if status == 1:
             _, d, h, rq, rcov, rres, sigma_px, rejected = refit
             done = {} if t0 is None else {"time_s": time.perf_counter() - t0,
-                                          "n_detections": len(xy), "patterns_tried": run.tried}
+                                          "n_detections": len(xy), "patterns_tried": tried}
             return Solution(
                 True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
                 matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
                 candidates=found, residuals_rad=rres, camera=cam, sigma_px=sigma_px,
                 note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-                **done), run.tried, t0 is not None
+                **done), tried, t0 is not None
         sol = self._solution(best, counter, path, found)
         if xy_all is not None and (status == -1 or not refine):
             # a cone the refit left, a degenerate fit, or a fitted camera: in Python
             sol = self._refine(sol, self._outside_as_nan(xy_all, len(xy)))
-        return sol, run.tried, False
+        return sol, tried, False
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
                          tables: list[PairWindows], run: Search,

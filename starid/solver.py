@@ -473,15 +473,18 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
                                  f"shape {arr.shape}")
             if arr.shape[1] == 3:
                 arr = arr[np.argsort(-arr[:, 2], kind="stable")]
-            xy = arr[:, :2]
+            xy = arr if arr.shape[1] == 2 else arr[:, :2]
         if len(xy) < min_count:
             return xy, f"too few detections ({len(xy)} < {min_count})"
         # compiled (frame_kernels.input_problem): this runs per frame, and its half-dozen
         # numpy calls cost more than the checks
-        use = xy[: self.max_detections]
-        code, a, b = frame_kernels.input_problem(
-            np.ascontiguousarray(xy), len(use), float(self.camera.width),
-            float(self.camera.height), 0.5 * max(self.camera.width, self.camera.height))
+        use = xy[: self.max_detections] if len(xy) > self.max_detections else xy
+        cam = self.camera
+        kept = self._frame_size_kept
+        if kept is None or kept[0] is not cam:
+            kept = self._frame_size_kept = (cam, float(cam.width), float(cam.height),
+                                            0.5 * max(cam.width, cam.height))
+        code, a, b = frame_kernels.input_problem(np.ascontiguousarray(xy), len(use), *kept[1:])
         if code == 1:
             return xy, f"bad input: {a} non-finite centroid(s), first at row {b}"
         if code == 2:
@@ -489,6 +492,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         if code == 3:
             return xy, f"bad input: duplicate centroids at rows {a} and {b}"
         return use, ""
+
+    _frame_size_kept: tuple | None = None  # (camera, width, height, slack) of _parse
 
     def _all_xy(self, detections, use: NDArray, mark_outside: bool = True,
                 ) -> NDArray[np.float64]:
