@@ -337,6 +337,7 @@ def starid_section(doc: dict[str, Any], command: str,
     commit = _commit(doc)
     if before is not None and _machine(before) != _machine(doc):
         before = None  # ratios from another machine do not compare
+    label = f"`{_commit(before)}`" if before and _commit(before) else "an earlier run"
     load = doc["machine"].get("loadavg")
     lines = [
         "### Lost-in-space against the peers, interleaved",
@@ -350,8 +351,8 @@ def starid_section(doc: dict[str, Any], command: str,
         "| condition | avail % (err) ours | " + " | ".join(
             f"avail % (err) {p}" for p in peers) + " | ours median / p95 | " + " | ".join(
             f"{p} median / p95 | ours ÷ {p} median / p95" for p in peers)
-        + (f" | before (`{_commit(before)}`) ÷ {peers[0]} median / p95"
-           if before and peers else "") + " |",
+        + (f" | before ({label}) ÷ {peers[0]} median / p95" if before and peers else "")
+        + " |",
         "|---" * (3 + 3 * len(peers) + (1 if before and peers else 0)) + "|",
     ]
     earlier = {c["name"]: c for c in before["conditions"]} if before and peers else {}

@@ -178,11 +178,11 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
     wi_all = np.empty((0, 20), dtype=np.int64)
     empty_i = np.zeros(0, dtype=np.int64)
     no_refit = (-2, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
-    triangles = triangle_store()  # kept across the walk's calls (a verification failed)
+    store = triangle_store()  # kept across the walk's calls (a verification failed)
     while True:
         sel, rows, q, wp, wi = search(ix, state, pats, plen, budget, no_match, n_no_match,
                                       b.reshape(1, n_xy, 3), tolerance_rad, 0.0, radius,
-                                      floor, p_false_max, max_partials, work, triangles)
+                                      floor, p_false_max, max_partials, work, store)
         if len(wp):
             wp_all = np.concatenate((wp_all, wp))
             wi_all = np.concatenate((wi_all, wi))

@@ -43,6 +43,10 @@ __all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", 
 
 _jit = numba.njit(cache=True, nogil=True)
 _ROWS = types.int64[:, :]  # the type of search()'s kept first-three-star assignments
+#: rows search() keeps per frame (24 bytes each): a frame of noise with windows a degree
+#: wide (tolerance_deg 0.3, V < 6.5, 25°) held ~2.5 million (60 MB) unbounded; a 15°
+#: frame at the default tolerance keeps ~1 500
+TRIANGLES_KEPT_MAX = 250_000
 
 # search() status (state[4]) and budget-note kinds (state[5])
 DONE, STRONG = 0, 1
@@ -683,15 +687,18 @@ def pattern_windows(pat, b_all, tolerance_rad, rel_tol):
 
 
 @_jit
-def triangle_store():
-    """An empty store of a frame's first-three-star assignments for :func:`search` (keys:
-    guess, detections and mirror sign; values: row 0 (over, level, 0), then the rows)."""
-    return Dict.empty(key_type=types.int64, value_type=_ROWS)
+def triangle_store(max_rows=TRIANGLES_KEPT_MAX):
+    """An empty store of a frame's first-three-star assignments for :func:`search`: (the
+    assignments — keys: guess, detections and mirror sign; values: row 0 (over, level, 0),
+    then the rows — and [rows kept, ``max_rows``]). Past ``max_rows`` rows, no more are
+    kept (they are matched afresh)."""
+    return (Dict.empty(key_type=types.int64, value_type=_ROWS),
+            np.array([0, max_rows], dtype=np.int64))
 
 
 @_jit
 def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, tolerance_rad,
-           rel_tol, radius, floor, p_false_max, max_partials, work, triangles):
+           rel_tol, radius, floor, p_false_max, max_partials, work, store):
     """Walk the pattern list ``pats`` (P, 8; ``plen`` stars each) × focal guesses (the
     directions ``b_cams`` (C, N, 3), ``radius`` and ``floor`` per guess; each pattern's
     windows :func:`pattern_windows` of ``tolerance_rad`` and ``rel_tol``) as
@@ -708,12 +715,15 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
     assignment (8). ``work`` is :func:`scratch` (all −1; left so).
 
     Each pattern is matched as :func:`match` matches it, with its first three stars'
-    assignments (:func:`_triangles`) kept in ``triangles`` (:func:`triangle_store`, one per
+    assignments (:func:`_triangles`) kept in ``store`` (:func:`triangle_store`, one per
     frame, for every call of its walk): a pattern that starts with the same three
     detections at the same guess and mirror sign — most Not-Modus trials — extends them
-    (:func:`_extended`) instead of scanning the pair list again."""
+    (:func:`_extended`) instead of scanning the pair list again; more than
+    ``max_partials`` of them are kept as that count alone (what :func:`_extended` makes of
+    them), and no more than the store's ``max_rows`` in all."""
     n_cams = b_cams.shape[0]
     n_det = b_cams.shape[1]
+    triangles, kept = store
     pos, ci, tried, first = state[0], state[1], state[2], state[3]
     wp = np.empty((16, 1))
     wi = np.empty((16, 20), dtype=np.int64)  # pattern, guess, trial, n, sel, assignment
@@ -743,12 +753,17 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
                 tri = triangles[key]
             else:
                 rows3, over, level = _triangles(ix, lo, hi, chir, max_partials, work)
-                tri = np.empty((len(rows3) + 1, 3), dtype=np.int64)
+                k3 = len(rows3)
+                if over == 0 and k3 > max_partials:  # what _extended makes of them
+                    over, level, k3 = k3, 3, 0
+                tri = np.empty((k3 + 1, 3), dtype=np.int64)
                 tri[0, 0], tri[0, 1], tri[0, 2] = over, level, 0  # row 0: over, level
-                for r in range(len(rows3)):
+                for r in range(k3):
                     tri[r + 1, 0], tri[r + 1, 1], tri[r + 1, 2] = rows3[r, 0], rows3[r, 1], \
                         rows3[r, 2]
-                triangles[key] = tri
+                if kept[0] + k3 <= kept[1]:  # bounded memory: past it, not kept
+                    kept[0] += k3
+                    triangles[key] = tri
             if tri[0, 0] > 0:
                 rows, over, level = np.zeros((0, n), dtype=np.int64), tri[0, 0], tri[0, 1]
             else:

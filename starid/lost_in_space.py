@@ -430,13 +430,13 @@ class LostInSpace:
         radius = self._match_radius_px() * pix
         floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
         b_stack = b_cams[0][None] if n_cams == 1 else np.stack(b_cams)
-        triangles = kernels.triangle_store()
+        store = kernels.triangle_store()
         while True:
             try:
                 sel, rows, q, wp, wi = kernels.search(
                     self._ix, state, pats, plen, budget, no_match, n_no_match, b_stack,
                     self.tolerance_rad, self._rel_tol, radius, floor, self.p_false_max, work,
-                    self._scratch(), triangles)
+                    self._scratch(), store)
             except BaseException:
                 self._drop_scratch()
                 raise

@@ -141,25 +141,32 @@ def test_a_tolerance_that_is_not_an_angle_is_refused(cat, tol):
 @pytest.mark.parametrize("path", ["one call", "pieces", "fitted camera"])
 def test_a_detection_outside_the_frame_beyond_the_search_keeps_the_others_rows(cat, path):
     """Detections past ``max_detections`` only join the final refit, and one outside the
-    frame is left out of it — even where a catalogue star lies just past the edge — but
-    every match must still name the caller's row: leaving them out once shifted every
-    later detection's index by one, pairing stars with detections hundreds of pixels
-    away."""
+    frame is left out of it — even within the match radius of a star just inside the
+    edge — but every match must still name the caller's row: leaving them out once
+    shifted every later detection's index by one, pairing stars with detections hundreds
+    of pixels away."""
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam, max_detections=10,
                            fit_camera="focal" if path == "fitted camera" else "auto")
     solver._frame_kernel = path != "pieces"  # a fitted camera: refitted in Python
     rng = np.random.default_rng(8)
     frames = 0
-    while frames < 3:
+    for _ in range(400):
+        if frames == 3:
+            break
         xy, q = sky_frame(cat, cam, rng)
-        pxy, _, _ = solver._project_idx(q, cam, margin_rad=0.01)
-        edge = pxy[~cam.in_frame(pxy) & cam.in_frame(pxy, margin=-2.0)]
-        if len(xy) < 16 or not len(edge):
+        pxy, _, _ = solver._project_idx(q, cam)
+        near = np.flatnonzero((pxy[:, 0] < 1.0) & (pxy[:, 1] > 5) & (pxy[:, 1] < 760))
+        if len(xy) < 16 or not len(near):
+            continue
+        star = pxy[near[0]]  # within 1.5 px of the left edge, inside the frame
+        own = np.argmin(np.hypot(*(xy - star).T))
+        if own < 12 or np.hypot(*(xy[own] - star)) > 1.5:
             continue
         frames += 1
-        # row 12 far left of the frame, row 13 on a star just past an edge
-        xy = np.insert(xy, 12, [[-400.0, 100.0], edge[0]], axis=0)
+        xy = np.delete(xy, own, axis=0)  # its own detection gone: only ours is near it
+        # row 12 just outside the left edge, 1.6 px or less from that star; row 13 far out
+        xy = np.insert(xy, 12, [[-0.6, star[1]], [-400.0, 100.0]], axis=0)
         sol = solver.solve(xy)
         assert sol.ok
         ids, pred = solver.stars_in_view(sol.q_cam_icrs)
@@ -168,6 +175,7 @@ def test_a_detection_outside_the_frame_beyond_the_search_keeps_the_others_rows(c
         far = [(d, h) for d, h in sol.matches if np.hypot(*(xy[d] - at[h])) > 3.0]
         assert not far
         assert any(d > 13 for d, _ in sol.matches)  # rows after them matched, by their rows
+    assert frames == 3
 
 
 def test_the_packed_result_reads_back_as_the_kernels_own(cat, monkeypatch):
@@ -286,3 +294,41 @@ def test_the_search_keeps_first_three_star_assignments_without_changing_a_trial(
         assert (state[0], sel.tolist(), rows.tolist()) == stop
         assert state[2] == stop[0] + 1  # trials counted alike
     assert reused > 0
+
+
+def test_the_kept_first_three_star_assignments_are_bounded():
+    """Windows a degree wide (tolerance_deg 0.3, V < 6.5, 25°) give noise frames ~10 000
+    first-three-star rows a pattern: kept unbounded, one frame held ~2.5 million (60 MB).
+    The store keeps no more than its max_rows (kernels.TRIANGLES_KEPT_MAX by default),
+    and a pattern's rows past max_partials as their count alone."""
+    cat = starid.Catalog.hipparcos(mag_limit=6.5, epoch=2025.0)
+    cam = starid.Camera.pinhole(1024, 768, 25.0)
+    rng = np.random.default_rng(4)
+    xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (30, 2))
+    b = cam.pixels_to_vectors(xy)
+    pix = cam.pixel_scale_rad
+
+    def walk(work_budget, max_rows):
+        solver = starid.Solver(cat, cam, tolerance_deg=0.3, work_budget=work_budget)
+        pats, plen, _ = solver._pattern_list(len(xy), True)
+        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+        store = kernels.triangle_store(max_rows)
+        kernels.search(solver._ix, state, pats, plen, 40,
+                       np.zeros((1, solver.max_patterns + 2), dtype=np.int64),
+                       np.zeros(1, dtype=np.int64), b[None], solver.tolerance_rad, 0.0,
+                       np.array([solver._match_radius_px() * pix]),
+                       np.array([np.sqrt(2.0) * solver.centroid_sigma_px * pix]),
+                       solver.p_false_max, work_budget, solver._scratch(), store)
+        assert state[2] == 40
+        return store
+
+    # 40 trials, ~10 000 rows for each new triple (~120 000 in all): more than it keeps
+    store = walk(200_000, 50_000)
+    rows = [len(v) - 1 for v in store[0].values()]
+    assert len(rows) >= 3 and max(rows) >= 5000
+    assert sum(rows) == store[1][0] <= 50_000
+    # with max_partials 12 000, the patterns past it: their count (level 3), no rows
+    store = walk(12_000, 10**9)
+    past = [v for v in store[0].values() if v[0, 0] > 12_000 and v[0, 1] == 3]
+    assert past and all(len(v) == 1 for v in past)
+    assert max(len(v) - 1 for v in store[0].values()) <= 12_000
