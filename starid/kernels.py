@@ -209,7 +209,7 @@ def _triangles(ix, cmin, cmax, chirality, max_partials, work):
     """The first three levels of :func:`match`: the assignments (K, 3) of the pattern's
     first three stars — which depend only on their three windows and the mirror sign, so
     :func:`search` reuses them for every pattern that starts with the same three
-    detections — and (over, level) as :func:`match` returns them for level 2."""
+    detections — and (over, level) as :func:`match` returns them for levels 2 and 3."""
     v, pair_i, pair_j, pair_cos = ix[0], ix[1], ix[2], ix[3]
     max_sep, bins = ix[8], ix[9]
     n_cat = len(v)
@@ -275,10 +275,9 @@ def _triangles(ix, cmin, cmax, chirality, max_partials, work):
                 k += 1
     for r in range(lo, hi):  # the lists' heads back to −1 (only S's were set)
         work[pair_i[r]] = work[pair_j[r]] = -1
-    out = np.empty((k, 3), dtype=np.int64)
-    for r in range(k):
-        out[r, 0], out[r, 1], out[r, 2] = cur[r, 0], cur[r, 1], cur[r, 2]
-    return out, 0, 0
+    if k > max_partials:  # as _extended would say of them: bounded memory for the rest
+        return np.zeros((0, 3), dtype=np.int64), k, 3
+    return cur[:k], 0, 0
 
 
 @_jit
@@ -719,8 +718,8 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
     frame, for every call of its walk): a pattern that starts with the same three
     detections at the same guess and mirror sign — most Not-Modus trials — extends them
     (:func:`_extended`) instead of scanning the pair list again; more than
-    ``max_partials`` of them are kept as that count alone (what :func:`_extended` makes of
-    them), and no more than the store's ``max_rows`` in all."""
+    ``max_partials`` of them are kept as that count alone (:func:`_triangles` returns no
+    rows then), and no more than the store's ``max_rows`` in all."""
     n_cams = b_cams.shape[0]
     n_det = b_cams.shape[1]
     triangles, kept = store
@@ -754,8 +753,6 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
             else:
                 rows3, over, level = _triangles(ix, lo, hi, chir, max_partials, work)
                 k3 = len(rows3)
-                if over == 0 and k3 > max_partials:  # what _extended makes of them
-                    over, level, k3 = k3, 3, 0
                 tri = np.empty((k3 + 1, 3), dtype=np.int64)
                 tri[0, 0], tri[0, 1], tri[0, 2] = over, level, 0  # row 0: over, level
                 for r in range(k3):

@@ -266,12 +266,14 @@ class LostInSpace:
     def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
         """:meth:`_solve_at`, then the accepted fix refitted on every detection ``xy_all``
-        (``Solver._refine``), with the solve's time since ``t0``, detections and trials
-        filled in: for a known ideal pinhole in one compiled call (:meth:`_solve_frame`)."""
+        (``Solver._refine``; those past ``xy`` outside the frame left out), with the solve's
+        time since ``t0``, detections and trials filled in: for a known ideal pinhole in one
+        compiled call (:meth:`_solve_frame`)."""
         if self._frame_path(cams):
             return self._solve_frame(xy, cams[0], xy_all, t0=t0)[0]
         sol, tried = self._solve_at(xy, cams)
-        return replace(self._refine(sol, xy_all), time_s=time.perf_counter() - t0,
+        return replace(self._refine(sol, self._outside_as_nan(xy_all, len(xy))),
+                       time_s=time.perf_counter() - t0,
                        n_detections=len(xy), patterns_tried=tried)
 
     _frame_kernel = True  # False: the search, verification and refit called one by one
@@ -423,7 +425,7 @@ class LostInSpace:
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
         n_cams = len(cams)
-        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+        state = _STATE0.copy()
         no_match = np.zeros((n_cams, self.max_patterns + 2), dtype=np.int64)
         n_no_match = np.zeros(n_cams, dtype=np.int64)
         pix = np.array([cam.pixel_scale_rad for cam in cams])

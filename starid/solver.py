@@ -296,9 +296,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             sol = self._refine(sol, self._all_xy(detections, xy))
             return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                            patterns_tried=1)
-        cams = cams or self._focal_guesses()
-        return self._solve_refined(
-            xy, cams, self._all_xy(detections, xy, not self._frame_path(cams)), t0)
+        return self._solve_refined(xy, cams or self._focal_guesses(),
+                                   self._all_xy(detections, xy, mark_outside=False), t0)
 
     def _focal_guesses(self) -> list[Camera]:
         return [self.camera.scaled(k) if k != 1.0 else self.camera
@@ -473,18 +472,15 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
                                  f"shape {arr.shape}")
             if arr.shape[1] == 3:
                 arr = arr[np.argsort(-arr[:, 2], kind="stable")]
-            xy = arr if arr.shape[1] == 2 else arr[:, :2]
+            xy = arr[:, :2]
         if len(xy) < min_count:
             return xy, f"too few detections ({len(xy)} < {min_count})"
         # compiled (frame_kernels.input_problem): this runs per frame, and its half-dozen
         # numpy calls cost more than the checks
-        use = xy[: self.max_detections] if len(xy) > self.max_detections else xy
-        cam = self.camera
-        kept = self._frame_size_kept
-        if kept is None or kept[0] is not cam:
-            kept = self._frame_size_kept = (cam, float(cam.width), float(cam.height),
-                                            0.5 * max(cam.width, cam.height))
-        code, a, b = frame_kernels.input_problem(np.ascontiguousarray(xy), len(use), *kept[1:])
+        use = xy[: self.max_detections]
+        code, a, b = frame_kernels.input_problem(
+            np.ascontiguousarray(xy), len(use), float(self.camera.width), float(self.camera.height),
+            0.5 * max(self.camera.width, self.camera.height))
         if code == 1:
             return xy, f"bad input: {a} non-finite centroid(s), first at row {b}"
         if code == 2:
@@ -493,15 +489,14 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             return xy, f"bad input: duplicate centroids at rows {a} and {b}"
         return use, ""
 
-    _frame_size_kept: tuple | None = None  # (camera, width, height, slack) of _parse
-
     def _all_xy(self, detections, use: NDArray, mark_outside: bool = True,
                 ) -> NDArray[np.float64]:
         """Every detection (not only the brightest ``max_detections`` the search uses),
         in the order of ``use``, for the final fit. Those past ``use`` that lie outside
         the frame become NaN, which the fit leaves out: dropping them instead shifted
         every later row, so matches named the wrong detections. ``mark_outside`` False:
-        as given (the one-call frame's refit leaves them out itself)."""
+        as given (the lost-in-space search marks them for its Python refit, and the
+        one-call frame's refit leaves them out itself)."""
         if len(detections.xy if hasattr(detections, "xy") else detections) <= len(use):
             return use
         if hasattr(detections, "xy"):

@@ -241,6 +241,21 @@ def test_the_packed_result_reads_back_as_the_kernels_own(cat, monkeypatch):
     assert seen == {"refitted", "rejected", "weak"}
 
 
+def _search(solver, b, budget, store):
+    """kernels.search of directions ``b`` (N, 3) at the solver's own camera, from a frame's
+    first trial through its whole pattern list: (state, sel, rows)."""
+    pix = solver.camera.pixel_scale_rad
+    pats, plen, _ = solver._pattern_list(len(b), True)
+    state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+    sel, rows, _, _, _ = kernels.search(
+        solver._ix, state, pats, plen, budget,
+        np.zeros((1, solver.max_patterns + 2), dtype=np.int64), np.zeros(1, dtype=np.int64),
+        b[None], solver.tolerance_rad, 0.0, np.array([solver._match_radius_px() * pix]),
+        np.array([np.sqrt(2.0) * solver.centroid_sigma_px * pix]), solver.p_false_max,
+        solver.work_budget, solver._scratch(), store)
+    return state, sel, rows
+
+
 def test_the_search_keeps_first_three_star_assignments_without_changing_a_trial(cat):
     """kernels.search reuses a pattern's first three stars' assignments for every later
     pattern that starts with the same three detections (most Not-Modus trials): its walk
@@ -258,13 +273,7 @@ def test_the_search_keeps_first_three_star_assignments_without_changing_a_trial(
         xy = np.ascontiguousarray(xy[: solver.max_detections])
         b = cam.pixels_to_vectors(xy)
         pats, plen, _ = solver._pattern_list(len(xy), True)
-        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
-        no_match = np.zeros((1, solver.max_patterns + 2), dtype=np.int64)
-        n_no_match = np.zeros(1, dtype=np.int64)
-        sel, rows, _, _, _ = kernels.search(
-            solver._ix, state, pats, plen, 200, no_match, n_no_match, b[None],
-            solver.tolerance_rad, 0.0, radius, floor, solver.p_false_max,
-            solver.work_budget, solver._scratch(), kernels.triangle_store())
+        state, sel, rows = _search(solver, b, 200, kernels.triangle_store())
         # the same walk, every pattern matched afresh
         masks, seen, stop = [], set(), None
         for p in range(min(len(pats), 200)):
@@ -306,20 +315,11 @@ def test_the_kept_first_three_star_assignments_are_bounded():
     rng = np.random.default_rng(4)
     xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (30, 2))
     b = cam.pixels_to_vectors(xy)
-    pix = cam.pixel_scale_rad
 
     def walk(work_budget, max_rows):
         solver = starid.Solver(cat, cam, tolerance_deg=0.3, work_budget=work_budget)
-        pats, plen, _ = solver._pattern_list(len(xy), True)
-        state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
         store = kernels.triangle_store(max_rows)
-        kernels.search(solver._ix, state, pats, plen, 40,
-                       np.zeros((1, solver.max_patterns + 2), dtype=np.int64),
-                       np.zeros(1, dtype=np.int64), b[None], solver.tolerance_rad, 0.0,
-                       np.array([solver._match_radius_px() * pix]),
-                       np.array([np.sqrt(2.0) * solver.centroid_sigma_px * pix]),
-                       solver.p_false_max, work_budget, solver._scratch(), store)
-        assert state[2] == 40
+        assert _search(solver, b, 40, store)[0][2] == 40
         return store
 
     # 40 trials, ~10 000 rows for each new triple (~120 000 in all): more than it keeps
