@@ -4,7 +4,10 @@
 15° frame, against Hipparcos to V 6.0. Any ``ok`` is a false identification. Prints JSON
 with the count, the largest reported p_false among rejections, and time per frame.
 
-    python benchmarks/never_wrong.py [--frames 10000] [--workers 2]
+    python benchmarks/never_wrong.py [--frames 10000] [--workers 2] [--json FILE]
+
+``--json`` also writes the document (with the machine and the commit) to FILE, e.g.
+``benchmarks/results/never_wrong.json`` for ``benchmarks/figures.py``.
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--fov", type=float, default=15.0)
     p.add_argument("--mag-limit", type=float, default=6.0)
+    p.add_argument("--json", metavar="FILE", help="also write the document to FILE")
     args = p.parse_args(argv)
     chunks = max(args.workers * 4, 1)
     per = [args.frames // chunks + (k < args.frames % chunks) for k in range(chunks)]
@@ -52,12 +56,22 @@ def main(argv: list[str] | None = None) -> int:
         res = list(pool.map(run_chunk, jobs))
     times = np.concatenate([r["times"] for r in res]) * 1e3
     accepted = sum(r["accepted"] for r in res)
-    print(json.dumps({
+    from adfusion.bench.machine import code_version, machine_info
+
+    doc = {
         "frames": int(sum(r["frames"] for r in res)), "accepted": int(accepted),
         "ms_median": round(float(np.median(times)), 2),
         "ms_p95": round(float(np.percentile(times, 95)), 2),
         "ms_max": round(float(times.max()), 2), "wall_s": round(time.time() - t0, 1),
-    }, indent=2))
+        "config": {"workers": args.workers, "seed": args.seed, "fov_deg": args.fov,
+                   "mag_limit": args.mag_limit},
+        "machine": machine_info(), "code": code_version(),
+    }
+    text = json.dumps(doc, indent=2)
+    print(text)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(text + "\n")
     return 1 if accepted else 0
 
 

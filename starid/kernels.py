@@ -6,7 +6,10 @@ cost ~170–230 µs, almost all of it per-call overhead spread over many small o
 (pattern windows, window look-ups, a few 3×3 SVDs, a KD-tree query of ~20 points, the
 false-match bookkeeping), not arithmetic. Compiled, a trial costs ~15–25 µs (the match,
 bound by the ~10³ catalogue pairs in each window) plus ~2.5 µs per candidate checked, and
-:func:`search` walks a frame's whole pattern list in one call. Measured (thread time,
+:func:`search` walks a frame's whole pattern list in one call. With the catalogue's
+triangles looked up instead of scanned (:mod:`starid.triangle_index`) and the sky map
+sparing the association its empty sky (:func:`sky_map`), a trial of a noise frame costs
+~6 µs of matching and ~10 µs of checking. Measured (thread time,
 this 2-core machine, 300 benchmark frames, Hipparcos V ≤ 6, 15° field): p95 per solve
 with 8 false stars 16–20 ms → 2.4–3.1 ms, clean median 0.9 → 0.5 ms.
 
@@ -34,14 +37,19 @@ import math
 
 import numba
 import numpy as np
+from adfusion.starid.index import REUSE_DRIFT_RAD
+from adfusion.starid.triangle_index import _cell, _sorted3
 from adfusion.starid.verify import DENSITY_SAFETY
 from numba import types
 from numba.typed import Dict
 
-__all__ = ["binomial_tail", "index_arrays", "match", "quick_checks", "scratch", "search",
-           "triangle_store"]
+__all__ = ["SKY_CELLS", "binomial_tail", "index_arrays", "match", "quick_checks", "scratch",
+           "search", "sky_map", "triangle_store"]
 
 _jit = numba.njit(cache=True, nogil=True)
+# small helpers called per pair or per detection, inlined: a call that passes ``ix`` (17
+# members, each array reference-counted) cost ~80 ns, more than the helper's own work
+_jit_inline = numba.njit(cache=True, nogil=True, inline="always")
 _ROWS = types.int64[:, :]  # the type of search()'s kept first-three-star assignments
 #: rows search() keeps per frame (24 bytes each): a frame of noise with windows a degree
 #: wide (tolerance_deg 0.3, V < 6.5, 25°) held ~2.5 million (60 MB) unbounded; a 15°
@@ -54,14 +62,31 @@ NOTE_NONE, NOTE_WORK, NOTE_PATTERNS = 0, 1, 2
 # association: angular slack (rad) of the neighbour-row annulus, far above the rounding
 # of an arccos near 0 (~1.5e-8 rad) and far below any match radius
 _SLACK = 1e-7
+# the pair list's stored cosines against the stars' own dot products: in an index reused
+# at a later epoch the stars moved by up to REUSE_DRIFT_RAD each since; numpy's and the
+# kernels' arccos may differ by an ulp. Windows are widened so far where a test on one
+# stands for a test on the other: the triangle table's cells (rad), cosine prefilters
+_CELL_MARGIN = 2 * REUSE_DRIFT_RAD + 1e-9
+_COS_MARGIN = 2 * REUSE_DRIFT_RAD + 1e-12
 
 
-def index_arrays(index) -> tuple:
+def index_arrays(index, triangles: tuple | None = None,
+                 sky: tuple | None = None) -> tuple:
     """The arrays of a :class:`starid.index.PatternIndex` the kernels take, as one tuple,
-    with the pair list's coarse table (:func:`pair_bins`) last."""
+    with the pair list's coarse table (:func:`pair_bins`), then the catalogue triangles
+    (:func:`starid.triangle_index.triangles_for`: tri, offs, cell_rad, n_cells; none —
+    empty, n_cells 0 — by default: the first three stars are matched by scanning) and the
+    sky map (words, cells per face edge, radius: :func:`sky_map`; none by default)."""
+    if triangles is None:
+        triangles = (np.zeros((0, 3), np.uint16), np.zeros(1, np.int32), 1.0, 0)
+    if sky is None:
+        sky = (np.zeros(1, np.uint64), 0, 0.0)
+    tri, offs, cell_rad, n_cells = triangles
+    words, m, sky_rad = sky
     return (index.vectors, index.pair_i, index.pair_j, index.pair_cos, index.nbr_ptr,
             index.nbr_idx, index.nbr_cos, index.nbr_bin, float(index.max_sep_rad),
-            pair_bins(index.pair_cos, float(index.max_sep_rad)))
+            pair_bins(index.pair_cos, float(index.max_sep_rad)), tri, offs,
+            float(cell_rad), int(n_cells), words, int(m), float(sky_rad))
 
 
 #: bins of the pair list's coarse table: ~20 pairs a bin for Hipparcos to V 6 in a 15° field
@@ -150,12 +175,12 @@ def _grown(a, k):
     return out
 
 
-@_jit
+@_jit_inline
 def _dot(v, a, b):
     return v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
 
 
-@_jit
+@_jit_inline
 def _mirror_ok(v, a, b, c, chirality):
     # det[a, b, c], written as starid.nstar._chirality_ok writes it
     det = (v[a, 0] * (v[b, 1] * v[c, 2] - v[b, 2] * v[c, 1])
@@ -219,6 +244,11 @@ def _triangles(ix, cmin, cmax, chirality, max_partials, work):
         return np.zeros((0, 3), dtype=np.int64), 0, 0
     if n_first > max_partials:
         return np.zeros((0, 3), dtype=np.int64), n_first, 2
+    if _looked_up(ix, cmin):
+        rows = _triangles_looked_up(ix, cmin, cmax, chirality)
+        if len(rows) > max_partials:
+            return np.zeros((0, 3), dtype=np.int64), len(rows), 3
+        return rows, 0, 0
     # the stars of the first pairs (bit set S, a few hundred bytes: in the L1 cache);
     # only they are looked up below, so only their partners in window (0, 2) are listed
     words = (n_cat + 63) >> 6
@@ -242,10 +272,12 @@ def _triangles(ix, cmin, cmax, chirality, max_partials, work):
             nxt_e[e], other[e], work[y] = work[y], x, e
             e += 1
     # the pair list holds pairs closer than max_sep only: when window (1, 2) reaches
-    # beyond, a partner there would be missed, so every first pair is extended
-    masked = math.acos(min(max(cmin[1, 2], -1.0), 1.0)) < max_sep - 1e-9
-    lo3, hi3 = _pair_window(pair_cos, cmin[1, 2] - 1e-15, cmax[1, 2] + 1e-15, bins,
-                            max_sep)
+    # beyond, a partner there would be missed, so every first pair is extended. The mask
+    # is widened by what the link test's fresh cosine may differ from the stored one: in
+    # an index reused at a later epoch (index.REUSE_DRIFT_RAD) the stars have moved
+    masked = math.acos(min(max(cmin[1, 2], -1.0), 1.0)) < max_sep - _CELL_MARGIN
+    lo3, hi3 = _pair_window(pair_cos, cmin[1, 2] - _COS_MARGIN, cmax[1, 2] + _COS_MARGIN,
+                            bins, max_sep)
     if not masked:
         lo3 = hi3
     in_12 = np.zeros(words, dtype=np.uint64)  # the stars with a partner in window (1, 2)
@@ -278,6 +310,120 @@ def _triangles(ix, cmin, cmax, chirality, max_partials, work):
     if k > max_partials:  # as _extended would say of them: bounded memory for the rest
         return np.zeros((0, 3), dtype=np.int64), k, 3
     return cur[:k], 0, 0
+
+
+@_jit
+def _looked_up(ix, cmin):
+    """Whether :func:`_triangles` looks the first three stars up in the triangle table:
+    there is one, and window (1, 2) stays inside the pair list's reach (beyond, a partner
+    there is no pair of the index, so no side of a stored triangle: scanned)."""
+    return ix[13] > 0 and math.acos(min(max(cmin[1, 2], -1.0), 1.0)) < \
+        ix[8] - _CELL_MARGIN - 1e-6
+
+
+@_jit
+def _angle_window(cmin, cmax):
+    return (math.acos(min(max(cmax, -1.0), 1.0)) - _CELL_MARGIN,
+            math.acos(min(max(cmin, -1.0), 1.0)) + _CELL_MARGIN)
+
+
+@_jit_inline
+def _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, near):
+    """The pair list's stored cosine of stars a, b (their row in a's neighbour row,
+    searched near the cosine ``near``; NaN if they are no pair)."""
+    lo, hi = nbr_ptr[a], nbr_ptr[a + 1]
+    e = _first_below(nbr_cos, near + _COS_MARGIN, lo, hi)  # descending within a row
+    while e < hi and nbr_cos[e] >= near - _COS_MARGIN:
+        if nbr_idx[e] == b:
+            return nbr_cos[e]
+        e += 1
+    for e in range(lo, hi):  # not where expected: the whole row
+        if nbr_idx[e] == b:
+            return nbr_cos[e]
+    return np.nan
+
+
+@_jit_inline
+def _key_before(a, b):
+    for t in range(7):
+        if a[t] != b[t]:
+            return a[t] < b[t]
+    return False
+
+
+@_jit
+def _triangles_looked_up(ix, cmin, cmax, chirality):
+    """:func:`_triangles`'s rows (K, 3) from the triangle table: every stored triangle in
+    the cells of the windows' sorted side angles, each of its six orders tested as the
+    scan tests a row (windows (0, 1) and (0, 2) on the pair list's stored cosines, (1, 2)
+    on the stars' dot product, the mirror sign), in the scan's order — first pairs in
+    pair-list order, i < j before the same pairs swapped, then third stars in the order
+    of the pairs (0, 2): descending stored cosine, ties by (i, j)."""
+    v, tri, offs, h, n = ix[0], ix[10], ix[11], ix[12], ix[13]
+    nbr_ptr, nbr_idx, nbr_cos = ix[4], ix[5], ix[6]
+    l01, u01 = _angle_window(cmin[0, 1], cmax[0, 1])
+    l02, u02 = _angle_window(cmin[0, 2], cmax[0, 2])
+    l12, u12 = _angle_window(cmin[1, 2], cmax[1, 2])
+    # a triangle matched in some order has its sorted sides within the sorted bounds
+    lo1, lo2, lo3 = _sorted3(l01, l02, l12)
+    hi1, hi2, hi3 = _sorted3(u01, u02, u12)
+    a1, b1 = max(int(lo1 / h), 0), min(int(hi1 / h), n - 1)
+    a2, b2 = max(int(lo2 / h), 0), min(int(hi2 / h), n - 1)
+    a3, b3 = max(int(lo3 / h), 0), min(int(hi3 / h), n - 1)
+    c01a, c01b, c02a, c02b = cmin[0, 1], cmax[0, 1], cmin[0, 2], cmax[0, 2]
+    c12a, c12b = cmin[1, 2], cmax[1, 2]
+    cur = np.empty((16, 3), dtype=np.int64)
+    keys = np.empty((16, 7))
+    k = 0
+    for c3 in range(a3, b3 + 1):
+        for c2 in range(a2, min(b2, c3) + 1):
+            for c1 in range(a1, min(b1, c2) + 1):
+                cell = _cell(c1, c2, c3)
+                for t in range(offs[cell], offs[cell + 1]):
+                    x, y, z = np.int64(tri[t, 0]), np.int64(tri[t, 1]), np.int64(tri[t, 2])
+                    dxy, dxz, dyz = _dot(v, x, y), _dot(v, x, z), _dot(v, y, z)
+                    for p in range(6):
+                        if p == 0:
+                            a, b, c, dab, dac, dbc = x, y, z, dxy, dxz, dyz
+                        elif p == 1:
+                            a, b, c, dab, dac, dbc = x, z, y, dxz, dxy, dyz
+                        elif p == 2:
+                            a, b, c, dab, dac, dbc = y, x, z, dxy, dyz, dxz
+                        elif p == 3:
+                            a, b, c, dab, dac, dbc = y, z, x, dyz, dxy, dxz
+                        elif p == 4:
+                            a, b, c, dab, dac, dbc = z, x, y, dxz, dyz, dxy
+                        else:
+                            a, b, c, dab, dac, dbc = z, y, x, dyz, dxz, dxy
+                        if not (dbc > c12a and dbc < c12b
+                                and dab > c01a - _COS_MARGIN and dab < c01b + _COS_MARGIN
+                                and dac > c02a - _COS_MARGIN and dac < c02b + _COS_MARGIN):
+                            continue
+                        sab = _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, dab)
+                        if not (sab > c01a and sab < c01b):
+                            continue
+                        sac = _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, c, dac)
+                        if not (sac > c02a and sac < c02b):
+                            continue
+                        if chirality != 0 and not _mirror_ok(v, a, b, c, chirality):
+                            continue
+                        if k == len(cur):
+                            cur = _grown(cur, k)
+                            keys = _grown(keys, k)
+                        cur[k, 0], cur[k, 1], cur[k, 2] = a, b, c
+                        keys[k, 0] = 1.0 if a > b else 0.0
+                        keys[k, 1], keys[k, 2], keys[k, 3] = -sab, min(a, b), max(a, b)
+                        keys[k, 4], keys[k, 5], keys[k, 6] = -sac, min(a, c), max(a, c)
+                        k += 1
+    for i in range(1, k):  # insertion sort (a few rows) into the scan's order
+        j = i
+        while j > 0 and _key_before(keys[j], keys[j - 1]):
+            for t in range(7):
+                keys[j, t], keys[j - 1, t] = keys[j - 1, t], keys[j, t]
+            for t in range(3):
+                cur[j, t], cur[j - 1, t] = cur[j - 1, t], cur[j, t]
+            j -= 1
+    return cur[:k]
 
 
 @_jit
@@ -389,13 +535,92 @@ def _chance(a, w, n_catalog, mirror_checked, st, sg):
     return e
 
 
+# --- the sky map: where no catalogue star lies near (starid.Solver's association) ------
+
+#: cells per cube-face edge of the sky map (6 × 1024² bits: 768 KiB)
+SKY_CELLS = 1024
+_FACE_Z_MIN = 1.0 / math.sqrt(3.0)  # a direction's largest |component| is at least this
+
+
+@_jit_inline
+def _sky_cell(x, y, z, m):
+    """The cube-map cell of direction (x, y, z) (any length > 0): the face of its largest
+    component, then the gnomonic coordinates on that face in m × m cells."""
+    ax, ay, az = abs(x), abs(y), abs(z)
+    if ax >= ay and ax >= az:
+        f, u, w = (0 if x > 0 else 1), y / ax, z / ax
+    elif ay >= az:
+        f, u, w = (2 if y > 0 else 3), x / ay, z / ay
+    else:
+        f, u, w = (4 if z > 0 else 5), x / az, y / az
+    iu = min(max(int((u + 1.0) * 0.5 * m), 0), m - 1)
+    iw = min(max(int((w + 1.0) * 0.5 * m), 0), m - 1)
+    return (f * m + iu) * m + iw
+
+
+@_jit_inline
+def _sky_marked(words, m, r):
+    c = _sky_cell(r[0], r[1], r[2], m)
+    return (words[c >> 6] >> np.uint64(c & 63)) & np.uint64(1) != 0
+
+
+@_jit
+def sky_map(v, radius_rad, m=SKY_CELLS):
+    """The cube-map cells (bits, :func:`_sky_cell`) within ``radius_rad`` of some star
+    ``v`` (N, 3) — a superset: on a face, where a direction's component along the face
+    axis is z ≥ 1/√3, the gnomonic map stretches angles by at most 1/z², so a star's
+    cap lies inside a square of half-width radius / (1/√3 − radius)² around its image.
+    An unmarked cell holds no direction within ``radius_rad`` of any star: there the
+    association (:func:`_nearest`) finds nothing, without looking.
+
+    >>> import numpy as np
+    >>> v = np.array([[0.0, 0.0, 1.0]])
+    >>> w = sky_map(v, 1e-3, 64)
+    >>> near, far = np.array([0.0, 5e-4, 1.0]), np.array([0.0, 0.2, 1.0])
+    >>> bool(_sky_marked(w, 64, near)), bool(_sky_marked(w, 64, far))
+    (True, False)
+    """
+    words = np.zeros((6 * m * m + 63) >> 6, dtype=np.uint64)
+    z_min = _FACE_Z_MIN - radius_rad  # along a cap's geodesics, on the face
+    rho = radius_rad / (z_min * z_min) * (1.0 + 1e-6) + 1e-9
+    for s in range(len(v)):
+        for f in range(6):
+            ax = f // 2
+            sign = 1.0 if f % 2 == 0 else -1.0
+            z = sign * v[s, ax]
+            if z < _FACE_Z_MIN - 2.0 * radius_rad:  # the cap does not reach this face
+                continue
+            o1, o2 = (1, 2) if ax == 0 else ((0, 2) if ax == 1 else (0, 1))
+            u, w = v[s, o1] / z, v[s, o2] / z
+            u0 = min(max(int((u - rho + 1.0) * 0.5 * m), 0), m - 1)
+            u1 = min(max(int((u + rho + 1.0) * 0.5 * m), 0), m - 1)
+            w0 = min(max(int((w - rho + 1.0) * 0.5 * m), 0), m - 1)
+            w1 = min(max(int((w + rho + 1.0) * 0.5 * m), 0), m - 1)
+            for iu in range(u0, u1 + 1):
+                for iw in range(w0, w1 + 1):
+                    c = (f * m + iu) * m + iw
+                    words[c >> 6] |= np.uint64(1) << np.uint64(c & 63)
+    return words
+
+
 @_jit
 def _nearest(ix, r, anchor, radius, bound2):
     """The catalogue star nearest to ``r`` (ICRS, ~unit) with squared chord < bound2, or
     −1: the anchor itself, then the anchor's neighbour row in the annulus of r's angle to
-    the anchor ± radius — or every star, when that annulus leaves the row's reach."""
-    v, nbr_idx, nbr_bin, max_sep = ix[0], ix[5], ix[7], ix[8]
+    the anchor ± radius — or every star, when that annulus leaves the row's reach
+    (:func:`_nearest_in` of ``ix``'s arrays)."""
+    return _nearest_in(ix[0], ix[5], ix[7], ix[8], ix[14], ix[15], ix[16], r, anchor,
+                       radius, bound2)
+
+
+@_jit_inline
+def _nearest_in(v, nbr_idx, nbr_bin, max_sep, sky, m, sky_rad, r, anchor, radius, bound2):
+    """:func:`_nearest` on the arrays it reads — the per-detection loops call this, not
+    :func:`_nearest`: passing ``ix`` cost more than the look-up; first the sky map
+    (``sky``, ``m`` cells per face edge, ``sky_rad``: :func:`sky_map`; m = 0: none)."""
     best, bj = bound2, -1
+    if m > 0 and radius <= sky_rad and not _sky_marked(sky, m, r):
+        return bj, best  # no star within the sky map's radius: none within radius
     dx, dy, dz = r[0] - v[anchor, 0], r[1] - v[anchor, 1], r[2] - v[anchor, 2]
     d2 = dx * dx + dy * dy + dz * dz
     if d2 < best:
@@ -500,6 +725,7 @@ def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, r
     Returns (ok (K,), p_false, R (K, 3, 3), e_trials, det (K, N), cat (K, N), matched
     (K,)): candidate k's matches are det[k, :matched[k]] (ascending) → cat[k, ...]."""
     v, nbr_ptr, max_sep = ix[0], ix[4], ix[8]
+    nbr_idx, nbr_bin, sky, m_sky, sky_rad = ix[5], ix[7], ix[14], ix[15], ix[16]
     n_k, n = assigns.shape
     n_det = len(b_all)
     n_cat = len(v)
@@ -535,7 +761,8 @@ def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, r
         for d in range(n_det):
             for j in range(3):
                 r[j] = b_all[d, 0] * R[0, j] + b_all[d, 1] * R[1, j] + b_all[d, 2] * R[2, j]
-            tgt[d], d2 = _nearest(ix, r, anchor, radius, bound2)
+            tgt[d], d2 = _nearest_in(v, nbr_idx, nbr_bin, max_sep, sky, m_sky, sky_rad, r,
+                                     anchor, radius, bound2)
             dist[d] = math.sqrt(d2)
         # one-to-one: a star claimed twice stays with the closer detection (ties: the
         # lower index); own[d] the star detection d keeps, or −1
@@ -1174,6 +1401,7 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
     matches)). Returns (ok, det, cat, q, covariance × variance factor, residuals,
     p_false); ok False where the Python code returns None."""
     v, nbr_ptr, max_sep = ix[0], ix[4], ix[8]
+    nbr_idx, nbr_bin, sky, m_sky, sky_rad = ix[5], ix[7], ix[14], ix[15], ix[16]
     n = len(sel)
     empty_i = np.zeros(0, dtype=np.int64)
     fail = (False, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 1.0)
@@ -1201,7 +1429,8 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
         for d in range(n_det):
             for j in range(3):
                 x[j] = b_all[d, 0] * R2[0, j] + b_all[d, 1] * R2[1, j] + b_all[d, 2] * R2[2, j]
-            tgt[d], d2 = _nearest(ix, x, assign[0], radius, bound2)
+            tgt[d], d2 = _nearest_in(v, nbr_idx, nbr_bin, max_sep, sky, m_sky, sky_rad, x,
+                                     assign[0], radius, bound2)
             dist[d] = math.sqrt(d2)
         det = np.empty(n_det, dtype=np.int64)
         cat = np.empty(n_det, dtype=np.int64)

@@ -25,6 +25,7 @@ from adfusion.starid.nstar import Pattern, WorkBudgetExceeded, chirality_of, clo
 from adfusion.starid.refine import _PRIOR_DOF, _RADIUS_MAX_FACTOR, _RADIUS_SIGMA, _REJECT_SIGMA
 from adfusion.starid.search_order import combination_order
 from adfusion.starid.solution import Candidate, Solution
+from adfusion.starid.triangle_index import triangles_for
 from adfusion.starid.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
 
@@ -40,6 +41,8 @@ _REFIT_CONSTANTS = (_REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR, float(_PRI
 
 # the search's work arrays, one per thread (LostInSpace._scratch)
 _SCRATCH = threading.local()
+# one table built at a time (solvers shared across threads)
+_TRIANGLES_LOCK = threading.Lock()
 # kernels.search's state at a frame's first trial (copied: cheaper than building it)
 _STATE0 = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
 
@@ -294,6 +297,24 @@ class LostInSpace:
 
     _frame_camera_kept: tuple | None = None
 
+    _triangles_done = False  # _with_triangles ran (whether or not it found a table)
+
+    def _with_triangles(self) -> None:
+        """From now on, match a pattern's first three stars by looking them up among the
+        catalogue's triangles (:mod:`starid.triangle_index`: the same rows, ~7× cheaper a
+        trial) — the table built or loaded from the cache the first time a frame needs
+        more than Renken's patterns (or by :meth:`warm_up`), not by every solver made:
+        it takes ~6 s to build and ~90 MB for V < 6 in a 15° field. None past its size
+        bound (``ADFUSION_TRIANGLES_MAX_MB``): the pair windows are scanned."""
+        if self._triangles_done:
+            return
+        with _TRIANGLES_LOCK:
+            if not self._triangles_done:
+                table = triangles_for(self.index, self.tolerance_rad, self._cache_tag)
+                if table is not None:
+                    self._ix = kernels.index_arrays(self.index, table, self._sky)
+                self._triangles_done = True
+
     def _scratch(self) -> NDArray[np.int64]:
         """The search's work array (:func:`kernels.scratch`: all −1, and left so), one per
         thread, shared by the thread's solvers (any array of at least twice the catalogue's
@@ -373,6 +394,7 @@ class LostInSpace:
             # Renken's patterns failed: on to the combinations (the same list, longer)
             full = True
             pats, plen, paths = self._pattern_list(len(xy), full)
+            self._with_triangles()
         pos, _, tried, first, _, note, a, b = state.tolist()
         if outcome == frame_kernels.NONE:
             run = Search(tried=tried, weak_rows=weak_rows)
@@ -457,6 +479,7 @@ class LostInSpace:
                 # Renken's patterns failed: on to the combinations (the same list, longer)
                 full = True
                 pats, plen, paths = self._pattern_list(len(xy), full)
+                self._with_triangles()
                 continue
             yield ci, sel, rows, quick_tuples(q), paths[pos]
             state[:2] = (pos, ci + 1) if ci + 1 < n_cams else (pos + 1, 0)

@@ -81,6 +81,7 @@ _REST_CHECK_SHARE = 0.5
 _CHECK_PATTERNS = 20
 # the bound of Solver.warm_up's search of its synthetic frame (patterns, partial assignments)
 _WARM_UP_PATTERNS, _WARM_UP_WORK = 3, 20_000
+_SKY_MAP_MAX_RAD = 0.01  # the sky map's radius at most (rad): past it, no map
 _CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
 # the names these helpers had before the split (solver.py held them all)
@@ -244,7 +245,13 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self.index = PatternIndex.from_vectors(self.vectors, self.max_sep_rad, cache_tag=tag)
         self.index_build_s = time.perf_counter() - t0
         self._tree = cKDTree(self.vectors)
-        self._ix = kernels.index_arrays(self.index)
+        # the association's sky map covers the widest guess's match radius (a kernel
+        # asked for more ignores it); none for pixels so coarse that it would cover the sky
+        sky_rad = self._match_radius_px() * widest.pixel_scale_rad * 1.01
+        self._sky = ((kernels.sky_map(self.vectors, sky_rad), kernels.SKY_CELLS, sky_rad)
+                     if sky_rad < _SKY_MAP_MAX_RAD else None)
+        self._ix = kernels.index_arrays(self.index, None, self._sky)  # triangles: later
+        self._cache_tag = tag
         self._pattern_lists: dict[tuple[int, ...], tuple] = {}
         # the search runs compiled, except with the matchers kept in numpy
         self._compiled = not (faithful or self.n_bands > 1)
@@ -402,13 +409,17 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
                 f"{math.degrees(apart):.3g}° away")
         return replace(lis, note="; ".join(n for n in (lis.note, note) if n))
 
-    def warm_up(self) -> bool:
+    def warm_up(self, triangles: bool = True) -> bool:
         """Pay the lost-in-space search's one-time costs now rather than in the first
         frames: its compiled kernels (:mod:`starid.kernels`: search, verification, final
         refit) load from numba's cache in ~1 s — or, the first time after an install unless
         ``python -m adfusion.starid.kernels`` prepared it, compile in 15–60 s — on their first
-        call in a process, and each detection count's pattern order is computed on first
-        use. Call it once before a timed or real-time loop. Returns whether a synthetic
+        call in a process, each detection count's pattern order is computed on first
+        use, and the catalogue's triangles (:mod:`starid.triangle_index`) are built —
+        ~6 s the first time for V < 6 in a 15° field — or loaded from the cache
+        (~0.2 s; ``triangles=False`` leaves that to the first frame that needs more than
+        Renken's patterns — a command that solves a few frames may never need it). Call
+        it once before a timed or real-time loop. Returns whether a synthetic
         frame (the catalogue seen at a few fixed attitudes) was solved.
 
         >>> from adfusion import starid
@@ -428,6 +439,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             # the search, bounded: the kernels compile on their first call whatever it
             # finds, and a camera whose match windows span degrees (32×24 px over 44°:
             # 1.4° a pixel) spent ~110 s solving this frame (the fuzz's CLI cases)
+            if triangles:
+                self._with_triangles()  # built or loaded now, not in a frame's budget
             xy8 = np.ascontiguousarray(pxy[:8])
             sol, _ = self._solve_at(xy8, [self.camera], _WARM_UP_PATTERNS, _WARM_UP_WORK)
             solved = self._refine(sol, xy8).ok

@@ -610,7 +610,9 @@ class _Solvers:
                 kw = {"fov_error_deg": a.fov_error}
             solver = starid.Solver(cat, camera, method=a.method, **kw)
             if a.method == "nstar":
-                solver.warm_up()  # the reported time is the solve's, not the kernels' loading
+                # the reported time is the solve's, not the kernels' loading; the triangle
+                # table only if a frame needs it (a build of seconds, once, then cached)
+                solver.warm_up(triangles=False)
             self._by_size[key] = solver
         return self._by_size[key]
 
