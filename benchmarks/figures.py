@@ -385,6 +385,8 @@ def never_wrong_section(doc: dict[str, Any], command: str,
     if before is not None and _machine(before) != _machine(doc):
         before = None
     commit = _commit(doc)
+    command = (f"python -P benchmarks/never_wrong.py --frames {doc['frames']} "
+               f"--workers {doc['config']['workers']}")  # as this document was run
     rows = [("this code" + (f" (`{commit}`)" if commit else ""), doc)]
     if before:
         rows.append((f"before (`{_commit(before)}`)" if _commit(before) else "before",
