@@ -543,6 +543,13 @@ _FACE_Z_MIN = 1.0 / math.sqrt(3.0)  # a direction's largest |component| is at le
 
 
 @_jit_inline
+def _face_bin(u, m):
+    """The cell row (or column) of gnomonic coordinate u ∈ [−1, 1] on a face of m cells —
+    one formula for the map's marks and its queries."""
+    return min(max(int((u + 1.0) * 0.5 * m), 0), m - 1)
+
+
+@_jit_inline
 def _sky_cell(x, y, z, m):
     """The cube-map cell of direction (x, y, z) (any length > 0): the face of its largest
     component, then the gnomonic coordinates on that face in m × m cells."""
@@ -553,9 +560,7 @@ def _sky_cell(x, y, z, m):
         f, u, w = (2 if y > 0 else 3), x / ay, z / ay
     else:
         f, u, w = (4 if z > 0 else 5), x / az, y / az
-    iu = min(max(int((u + 1.0) * 0.5 * m), 0), m - 1)
-    iw = min(max(int((w + 1.0) * 0.5 * m), 0), m - 1)
-    return (f * m + iu) * m + iw
+    return (f * m + _face_bin(u, m)) * m + _face_bin(w, m)
 
 
 @_jit_inline
@@ -592,12 +597,8 @@ def sky_map(v, radius_rad, m=SKY_CELLS):
                 continue
             o1, o2 = (1, 2) if ax == 0 else ((0, 2) if ax == 1 else (0, 1))
             u, w = v[s, o1] / z, v[s, o2] / z
-            u0 = min(max(int((u - rho + 1.0) * 0.5 * m), 0), m - 1)
-            u1 = min(max(int((u + rho + 1.0) * 0.5 * m), 0), m - 1)
-            w0 = min(max(int((w - rho + 1.0) * 0.5 * m), 0), m - 1)
-            w1 = min(max(int((w + rho + 1.0) * 0.5 * m), 0), m - 1)
-            for iu in range(u0, u1 + 1):
-                for iw in range(w0, w1 + 1):
+            for iu in range(_face_bin(u - rho, m), _face_bin(u + rho, m) + 1):
+                for iw in range(_face_bin(w - rho, m), _face_bin(w + rho, m) + 1):
                     c = (f * m + iu) * m + iw
                     words[c >> 6] |= np.uint64(1) << np.uint64(c & 63)
     return words
