@@ -16,10 +16,11 @@ JSON; exit 1 on a difference.
     python -P benchmarks/compiled_equivalence.py --record FILE.json   # solutions, any version
     python -P benchmarks/compiled_equivalence.py --against FILE.json  # this code against them
 
-``--record`` writes each frame's solution (the discrete fields and p_false) so that another
-version of the code — the one before a change — can be compared with this one on the same
-frames: ``--against`` solves them again and reports every frame whose discrete fields differ
-and the largest relative p_false difference.
+``--record`` writes each frame's solution (the discrete fields, p_false and the attitude)
+so that another version of the code — the one before a change — can be compared with this
+one on the same frames: ``--against`` solves them again and reports every frame whose
+discrete fields differ or whose attitude moved by more than 1e-12, the largest relative
+p_false difference and the largest attitude difference.
 """
 
 from __future__ import annotations
@@ -122,7 +123,8 @@ def summary(sol) -> dict:
             "matching_counter": int(sol.matching_counter), "note": sol.note,
             "matches": [list(map(int, m)) for m in sol.matches],
             "candidates": [[list(map(int, m)) for m in c.matches] for c in sol.candidates],
-            "p_false": [sol.p_false] + [float(c.p_false) for c in sol.candidates]}
+            "p_false": [sol.p_false] + [float(c.p_false) for c in sol.candidates],
+            "q": None if sol.q_cam_icrs is None else [float(x) for x in sol.q_cam_icrs]}
 
 
 def record_or_compare(args) -> int:
@@ -142,11 +144,17 @@ def record_or_compare(args) -> int:
         out[name] = sols
         if not args.against:
             continue
-        n_diff, worst, first = 0, 0.0, None
+        n_diff, worst, worst_q, first = 0, 0.0, 0.0, None
         for i, (a, b) in enumerate(zip(sols, old[name], strict=True)):
             pa, pb = a.pop("p_false"), b.pop("p_false")
+            qa, qb = a.pop("q", None), b.pop("q", None)
             same = a == b and len(pa) == len(pb) and all(
                 (x is None) == (y is None) for x, y in zip(pa, pb, strict=True))
+            if same and qa is not None and qb is not None:
+                # the attitude to rounding (another version may sum in another order)
+                dq = max(abs(x - y) for x, y in zip(qa, qb, strict=True))
+                worst_q = max(worst_q, dq)
+                same = dq <= 1e-12
             if not same:
                 n_diff += 1
                 first = first or {"frame": i, "this": a, "recorded": b}
@@ -156,6 +164,7 @@ def record_or_compare(args) -> int:
                     worst = max(worst, abs(x - y) / abs(y))
         report[name] = {"frames": args.frames, "identified": sum(s["ok"] for s in sols),
                         "different": n_diff, "p_false_max_rel_difference": worst,
+                        "q_max_difference": worst_q,
                         "first_difference": first}
         bad += n_diff
     if args.record:

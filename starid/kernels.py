@@ -19,7 +19,8 @@ the same rows in the same order, the same decisions; tests compare them on rando
 patterns. A candidate's full verification (:func:`verify_candidate`) and the final refit
 (:func:`refine_pinhole`) are compiled too, equal to :mod:`starid.verify` and
 :mod:`starid.refine` to rounding (docs/decisions.md). Compiled on first use and cached on
-disk (``cache=True``, keyed by this file's content): the first process after an install or
+disk (:func:`starid.jit_cache.njit_cached`, keyed by this file's content and that of the
+modules it compiles in): the first process after an install or
 an edit spends 15–60 s compiling (once) unless :func:`prepare` (``python -m
 adfusion.starid.kernels``) did it, later ones ~1 s loading.
 
@@ -35,10 +36,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from adfusion.starid.index import REUSE_DRIFT_RAD
-from adfusion.starid.triangle_index import _cell, _sorted3
+from adfusion.starid.jit_cache import njit_cached
+from adfusion.starid.triangle_index import QUANTA, _cell, _sorted3
 from adfusion.starid.verify import DENSITY_SAFETY
 from numba import types
 from numba.typed import Dict
@@ -46,10 +47,11 @@ from numba.typed import Dict
 __all__ = ["SKY_CELLS", "binomial_tail", "index_arrays", "match", "quick_checks", "scratch",
            "search", "sky_map", "triangle_store"]
 
-_jit = numba.njit(cache=True, nogil=True)
-# small helpers called per pair or per detection, inlined: a call that passes ``ix`` (17
+# cached on disk, keyed by this file and the modules it compiles in (starid.jit_cache)
+_jit = njit_cached(nogil=True)
+# small helpers called per pair or per detection, inlined: a call that passes ``ix`` (18
 # members, each array reference-counted) cost ~80 ns, more than the helper's own work
-_jit_inline = numba.njit(cache=True, nogil=True, inline="always")
+_jit_inline = njit_cached(nogil=True, inline="always")
 _ROWS = types.int64[:, :]  # the type of search()'s kept first-three-star assignments
 #: rows search() keeps per frame (24 bytes each): a frame of noise with windows a degree
 #: wide (tolerance_deg 0.3, V < 6.5, 25°) held ~2.5 million (60 MB) unbounded; a 15°
@@ -86,7 +88,23 @@ def index_arrays(index, triangles: tuple | None = None,
     return (index.vectors, index.pair_i, index.pair_j, index.pair_cos, index.nbr_ptr,
             index.nbr_idx, index.nbr_cos, index.nbr_bin, float(index.max_sep_rad),
             pair_bins(index.pair_cos, float(index.max_sep_rad)), tri, offs,
-            float(cell_rad), int(n_cells), words, int(m), float(sky_rad))
+            float(cell_rad), int(n_cells), words, int(m), float(sky_rad),
+            _cos_deviation(index.vectors, index.pair_i, index.pair_j, index.pair_cos))
+
+
+@_jit
+def _cos_deviation(v, pair_i, pair_j, pair_cos):
+    """The largest difference between a pair's stored cosine and its stars' dot product
+    as the kernels compute it (:func:`_dot`): 0 for an index built from ``v`` (the build
+    computes the same sums in the same order), up to the stars' drift for an index reused
+    at a later epoch. A fresh dot farther than this inside a window stands for the stored
+    cosine (:func:`_triangles_looked_up`)."""
+    worst = 0.0
+    for r in range(len(pair_cos)):
+        a, b = pair_i[r], pair_j[r]
+        d = v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]
+        worst = max(worst, abs(d - pair_cos[r]))
+    return worst
 
 
 #: bins of the pair list's coarse table: ~20 pairs a bin for Hipparcos to V 6 in a 15° field
@@ -351,6 +369,39 @@ def _key_before(a, b):
     return False
 
 
+@_jit_inline
+def _quanta_in(lo, hi, c, n):
+    """The quanta (:data:`starid.triangle_index.QUANTA` per cell) a sorted side in cell
+    ``c`` of ``n`` may have to lie within [lo, hi] (in cells): (first, last). A side in
+    quantum q lies in [c + q/Q, c + (q+1)/Q) — the last cell's last quantum reaches past
+    it — so the bounds are rounded outwards, with a slack far above the rounding."""
+    a = (lo - c) * QUANTA - 1e-6
+    b = (hi - c) * QUANTA + 1e-6
+    first = max(math.ceil(a) - 1, -1) if a < QUANTA else QUANTA
+    if c == n - 1:
+        first = min(first, QUANTA - 1)
+    last = min(math.floor(b), QUANTA) if b > -1 else -1
+    return first, last
+
+
+@_jit
+def _near_tie(cur, keys, k, gap):
+    """Whether two of the ``k`` rows ``cur`` the sort keys ``keys`` order by a side's
+    cosine (:func:`_triangles_looked_up`) hold different pairs on that side with keys
+    within ``gap``: their stored cosines might order them otherwise."""
+    for r in range(k):
+        for s in range(r + 1, k):
+            if keys[r, 0] != keys[s, 0]:
+                continue
+            if keys[r, 2] != keys[s, 2] or keys[r, 3] != keys[s, 3]:  # other first pairs
+                if abs(keys[r, 1] - keys[s, 1]) <= gap:
+                    return True
+            elif (keys[r, 5] != keys[s, 5] or keys[r, 6] != keys[s, 6]) \
+                    and abs(keys[r, 4] - keys[s, 4]) <= gap:
+                return True
+    return False
+
+
 @_jit
 def _triangles_looked_up(ix, cmin, cmax, chirality):
     """:func:`_triangles`'s rows (K, 3) from the triangle table: every stored triangle in
@@ -360,7 +411,7 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
     pair-list order, i < j before the same pairs swapped, then third stars in the order
     of the pairs (0, 2): descending stored cosine, ties by (i, j)."""
     v, tri, offs, h, n = ix[0], ix[10], ix[11], ix[12], ix[13]
-    nbr_ptr, nbr_idx, nbr_cos = ix[4], ix[5], ix[6]
+    nbr_ptr, nbr_idx, nbr_cos, dev = ix[4], ix[5], ix[6], ix[17]
     l01, u01 = _angle_window(cmin[0, 1], cmax[0, 1])
     l02, u02 = _angle_window(cmin[0, 2], cmax[0, 2])
     l12, u12 = _angle_window(cmin[1, 2], cmax[1, 2])
@@ -376,10 +427,20 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
     keys = np.empty((16, 7))
     k = 0
     for c3 in range(a3, b3 + 1):
+        m3, n3 = _quanta_in(lo3 / h, hi3 / h, c3, n)
         for c2 in range(a2, min(b2, c3) + 1):
+            m2, n2 = _quanta_in(lo2 / h, hi2 / h, c2, n)
             for c1 in range(a1, min(b1, c2) + 1):
+                m1, n1 = _quanta_in(lo1 / h, hi1 / h, c1, n)
                 cell = _cell(c1, c2, c3)
                 for t in range(offs[cell], offs[cell + 1]):
+                    # the sides' quanta first: most triangles of a cell miss the windows,
+                    # and are passed over without reading their stars' vectors
+                    qs = np.int64(tri[t, 3])
+                    q1, q2, q3 = qs & 31, (qs >> 5) & 31, qs >> 10
+                    if not (q1 >= m1 and q1 <= n1 and q2 >= m2 and q2 <= n2 and q3 >= m3
+                            and q3 <= n3):
+                        continue
                     x, y, z = np.int64(tri[t, 0]), np.int64(tri[t, 1]), np.int64(tri[t, 2])
                     dxy, dxz, dyz = _dot(v, x, y), _dot(v, x, z), _dot(v, y, z)
                     for p in range(6):
@@ -399,12 +460,19 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
                                 and dab > c01a - _COS_MARGIN and dab < c01b + _COS_MARGIN
                                 and dac > c02a - _COS_MARGIN and dac < c02b + _COS_MARGIN):
                             continue
-                        sab = _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, dab)
-                        if not (sab > c01a and sab < c01b):
-                            continue
-                        sac = _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, c, dac)
-                        if not (sac > c02a and sac < c02b):
-                            continue
+                        # the stored cosines decide the windows (as in the scan), but a
+                        # fresh dot farther than `dev` inside a window stands for its
+                        # stored cosine: looked up only near an edge (each look-up is a
+                        # search of a neighbour row, mostly cache misses)
+                        sab, sac = dab, dac
+                        if not (dab > c01a + dev and dab < c01b - dev):
+                            sab = _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, dab)
+                            if not (sab > c01a and sab < c01b):
+                                continue
+                        if not (dac > c02a + dev and dac < c02b - dev):
+                            sac = _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, c, dac)
+                            if not (sac > c02a and sac < c02b):
+                                continue
                         if chirality != 0 and not _mirror_ok(v, a, b, c, chirality):
                             continue
                         if k == len(cur):
@@ -415,6 +483,13 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
                         keys[k, 1], keys[k, 2], keys[k, 3] = -sab, min(a, b), max(a, b)
                         keys[k, 4], keys[k, 5], keys[k, 6] = -sac, min(a, c), max(a, c)
                         k += 1
+    if dev > 0 and _near_tie(cur, keys, k, 2 * dev):
+        # two pairs' fresh cosines too close to order them as their stored ones: the
+        # stored cosines of every row as sort keys
+        for r in range(k):
+            a, b, c = cur[r, 0], cur[r, 1], cur[r, 2]
+            keys[r, 1] = -_stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, -keys[r, 1])
+            keys[r, 4] = -_stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, c, -keys[r, 4])
     for i in range(1, k):  # insertion sort (a few rows) into the scan's order
         j = i
         while j > 0 and _key_before(keys[j], keys[j - 1]):
@@ -537,8 +612,12 @@ def _chance(a, w, n_catalog, mirror_checked, st, sg):
 
 # --- the sky map: where no catalogue star lies near (starid.Solver's association) ------
 
-#: cells per cube-face edge of the sky map (6 × 1024² bits: 768 KiB)
+#: cells per cube-face edge of the sky map (6 × 1024² bits: 768 KiB, and a coarse copy)
 SKY_CELLS = 1024
+# the map's coarse copy, in front of it: a cell of 2³ × 2³ fine cells, marked when any of
+# them is (6 × 128² bits, 12 KiB: it stays in the L1 cache, where a probe of the fine map
+# is mostly a cache miss — and most probes of a wrong attitude end in the coarse map)
+_COARSE_SHIFT = 3
 _FACE_Z_MIN = 1.0 / math.sqrt(3.0)  # a direction's largest |component| is at least this
 
 
@@ -552,7 +631,8 @@ def _face_bin(u, m):
 @_jit_inline
 def _sky_cell(x, y, z, m):
     """The cube-map cell of direction (x, y, z) (any length > 0): the face of its largest
-    component, then the gnomonic coordinates on that face in m × m cells."""
+    component, then the gnomonic coordinates on that face in m × m cells: (face, row,
+    column)."""
     ax, ay, az = abs(x), abs(y), abs(z)
     if ax >= ay and ax >= az:
         f, u, w = (0 if x > 0 else 1), y / ax, z / ax
@@ -560,13 +640,30 @@ def _sky_cell(x, y, z, m):
         f, u, w = (2 if y > 0 else 3), x / ay, z / ay
     else:
         f, u, w = (4 if z > 0 else 5), x / az, y / az
-    return (f * m + _face_bin(u, m)) * m + _face_bin(w, m)
+    return f, _face_bin(u, m), _face_bin(w, m)
+
+
+@_jit_inline
+def _bit(words, c):
+    return (words[c >> 6] >> np.uint64(c & 63)) & np.uint64(1) != 0
+
+
+@_jit_inline
+def _set_bit(words, c):
+    words[c >> 6] |= np.uint64(1) << np.uint64(c & 63)
 
 
 @_jit_inline
 def _sky_marked(words, m, r):
-    c = _sky_cell(r[0], r[1], r[2], m)
-    return (words[c >> 6] >> np.uint64(c & 63)) & np.uint64(1) != 0
+    """Whether direction r's cell of the map ``words`` (:func:`sky_map`, m cells per face
+    edge) is marked: the coarse copy first (m being a multiple of 2³, a fine cell's
+    coarse cell is its row and column shifted — :func:`_face_bin` scales by a power of
+    two exactly)."""
+    f, iu, iw = _sky_cell(r[0], r[1], r[2], m)
+    mc = m >> _COARSE_SHIFT
+    if not _bit(words, (f * mc + (iu >> _COARSE_SHIFT)) * mc + (iw >> _COARSE_SHIFT)):
+        return False
+    return _bit(words, ((6 * mc * mc + 63) >> 6) * 64 + (f * m + iu) * m + iw)
 
 
 @_jit
@@ -584,8 +681,15 @@ def sky_map(v, radius_rad, m=SKY_CELLS):
     >>> near, far = np.array([0.0, 5e-4, 1.0]), np.array([0.0, 0.2, 1.0])
     >>> bool(_sky_marked(w, 64, near)), bool(_sky_marked(w, 64, far))
     (True, False)
+
+    The words hold the coarse copy (:func:`_sky_marked`), then the cells; ``m`` must be a
+    multiple of 8.
     """
-    words = np.zeros((6 * m * m + 63) >> 6, dtype=np.uint64)
+    if m <= 0 or m % (1 << _COARSE_SHIFT):
+        raise ValueError("the sky map's cells per face edge must be a multiple of 8")
+    mc = m >> _COARSE_SHIFT
+    fine0 = ((6 * mc * mc + 63) >> 6) * 64  # the first fine cell's bit
+    words = np.zeros(((6 * mc * mc + 63) >> 6) + ((6 * m * m + 63) >> 6), dtype=np.uint64)
     z_min = _FACE_Z_MIN - radius_rad  # along a cap's geodesics, on the face
     rho = radius_rad / (z_min * z_min) * (1.0 + 1e-6) + 1e-9
     for s in range(len(v)):
@@ -599,8 +703,9 @@ def sky_map(v, radius_rad, m=SKY_CELLS):
             u, w = v[s, o1] / z, v[s, o2] / z
             for iu in range(_face_bin(u - rho, m), _face_bin(u + rho, m) + 1):
                 for iw in range(_face_bin(w - rho, m), _face_bin(w + rho, m) + 1):
-                    c = (f * m + iu) * m + iw
-                    words[c >> 6] |= np.uint64(1) << np.uint64(c & 63)
+                    _set_bit(words, fine0 + (f * m + iu) * m + iw)
+                    _set_bit(words, (f * mc + (iu >> _COARSE_SHIFT)) * mc
+                             + (iw >> _COARSE_SHIFT))
     return words
 
 

@@ -304,7 +304,7 @@ class LostInSpace:
         catalogue's triangles (:mod:`starid.triangle_index`: the same rows, ~7× cheaper a
         trial) — the table built or loaded from the cache the first time a frame needs
         more than Renken's patterns (or by :meth:`warm_up`), not by every solver made:
-        it takes ~6 s to build and ~90 MB for V < 6 in a 15° field. None past its size
+        it takes ~6 s to build and ~113 MiB for V < 6 in a 15° field. None past its size
         bound (``ADFUSION_TRIANGLES_MAX_MB``): the pair windows are scanned."""
         if self._triangles_done:
             return

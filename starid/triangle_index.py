@@ -11,7 +11,7 @@ rows in the same order (docs/concepts/identification.md, "Triangles looked up").
 
 The table holds the triangles of the pattern index itself (its neighbour rows and their
 stored cosines), so it depends on nothing else; it is built once per index (~6 s for
-13 million triangles, ~92 MB for V < 6 in a 15° field) and kept in the cache beside it.
+13 million triangles, ~113 MiB for V < 6 in a 15° field) and kept in the cache beside it.
 Past :func:`max_bytes` (a denser catalogue, a wider field) there is none, and the search
 scans the windows as before.
 
@@ -22,7 +22,7 @@ Example:
     >>> v /= np.linalg.norm(v, axis=1)[:, None]
     >>> t = triangle_table(PatternIndex.from_vectors(v, 0.5), 1e-3)
     >>> t["tri"].shape[1], int(t["offs"][-1]) == len(t["tri"])
-    (3, True)
+    (4, True)
 """
 
 from __future__ import annotations
@@ -43,7 +43,12 @@ _jit = numba.njit(cache=True, nogil=True)
 DEFAULT_MAX_MB = 256.0
 #: cells per side angle at most (the cell table has ~CELLS_MAX³/6 entries)
 CELLS_MAX = 300
-TRIANGLE_LAYOUT = 1  # bump when the stored arrays change
+TRIANGLE_LAYOUT = 2  # bump when the stored arrays change
+#: a triangle's sorted sides are stored within their cells to 1/QUANTA of a cell (5 bits
+#: each, packed in the row's fourth 16-bit word): the look-up skips a triangle whose sides
+#: miss the windows without reading its stars' vectors (random reads: most of a cold
+#: look-up's time)
+QUANTA = 32
 
 
 def max_bytes() -> int:
@@ -89,10 +94,16 @@ def _sorted3(a, b, c):
 
 
 @_jit
+def _quantum(u, c):
+    """Where side u (in cells) lies within its cell c: 0 … QUANTA − 1."""
+    return min(max(int((u - c) * QUANTA), 0), QUANTA - 1)
+
+
+@_jit
 def _walk(nbr_ptr, nbr_idx, nbr_ang, h, n, counts, tri, fill):
     """Every triangle i < j < k of the index's pairs, by the cell of its sorted stored side
     angles: counted into ``counts[cell + 1]`` or, with ``fill``, written at
-    ``counts[cell]`` (advanced)."""
+    ``counts[cell]`` (advanced) with its sides' quanta (:data:`QUANTA`)."""
     n_star = len(nbr_ptr) - 1
     ang_i = np.full(n_star, -1.0)  # angle (i, k) of star i's neighbours k
     for i in range(n_star):
@@ -107,11 +118,14 @@ def _walk(nbr_ptr, nbr_idx, nbr_ang, h, n, counts, tri, fill):
                 if k <= j or ang_i[k] < 0:
                     continue
                 s1, s2, s3 = _sorted3(nbr_ang[e], ang_i[k], nbr_ang[f])
-                cell = _cell(min(int(s1 / h), n - 1), min(int(s2 / h), n - 1),
-                             min(int(s3 / h), n - 1))
+                c1, c2, c3 = (min(int(s1 / h), n - 1), min(int(s2 / h), n - 1),
+                              min(int(s3 / h), n - 1))
+                cell = _cell(c1, c2, c3)
                 if fill:
                     p = counts[cell]
                     tri[p, 0], tri[p, 1], tri[p, 2] = i, j, k
+                    tri[p, 3] = (_quantum(s1 / h, c1) | (_quantum(s2 / h, c2) << 5)
+                                 | (_quantum(s3 / h, c3) << 10))
                     counts[cell] = p + 1
                 else:
                     counts[cell + 1] += 1
@@ -124,9 +138,9 @@ def _build(index: PatternIndex, cell_rad: float) -> dict[str, np.ndarray]:
     counts = np.zeros(n * (n + 1) * (n + 2) // 6 + 1, dtype=np.int64)
     ang = np.arccos(np.clip(index.nbr_cos, -1.0, 1.0))
     _walk(index.nbr_ptr, index.nbr_idx, ang, cell_rad, n, counts,
-          np.zeros((0, 3), np.uint16), False)
+          np.zeros((0, 4), np.uint16), False)
     offs = np.cumsum(counts)
-    tri = np.empty((int(offs[-1]), 3), dtype=np.uint16)
+    tri = np.empty((int(offs[-1]), 4), dtype=np.uint16)
     _walk(index.nbr_ptr, index.nbr_idx, ang, cell_rad, n, offs[:-1].copy(), tri, True)
     return {"tri": tri, "offs": offs.astype(np.int32), "cell_rad": np.array(cell_rad),
             "n_cells": np.array(n), "pairs_sum": np.array(float(index.pair_cos.sum()))}
@@ -135,7 +149,8 @@ def _build(index: PatternIndex, cell_rad: float) -> dict[str, np.ndarray]:
 def triangle_table(index: PatternIndex, cell_rad: float,
                    cache_tag: str | None = None) -> dict[str, np.ndarray]:
     """The triangles of ``index`` (``tri`` (T, 3) star rows, ``offs`` the cells' first
-    rows, ``cell_rad``, ``n_cells``), built or — with ``cache_tag`` naming the catalogue,
+    rows, ``cell_rad``, ``n_cells``; each row the stars i < j < k and the quanta of its
+    sorted sides, :data:`QUANTA`), built or — with ``cache_tag`` naming the catalogue,
     as for the index — loaded from the cache."""
     if cache_tag is None:
         return _build(index, cell_rad)
@@ -155,7 +170,7 @@ def triangles_for(index: PatternIndex, tolerance_rad: float,
     n_est = estimate_triangles(index)
     cell_rad = cell_rad_for(tolerance_rad, index.max_sep_rad)
     n = int(index.max_sep_rad / cell_rad) + 1
-    need = 6 * n_est * 1.2 + 4 * n ** 3 / 6
+    need = 8 * n_est * 1.2 + 4 * n ** 3 / 6
     if len(index.vectors) > np.iinfo(np.uint16).max or n_est == 0 or need > max_bytes():
         return None
     t = triangle_table(index, cell_rad, cache_tag)

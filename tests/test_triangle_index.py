@@ -99,7 +99,7 @@ def test_a_reused_index_looks_up_what_it_scans():
                                            index0.pair_cos.tolist(), strict=True)}
     tri = triangle_index.triangle_table(index1, 1e-3)["tri"]
     found = made = 0
-    for x, y, z in tri[rng.choice(len(tri), 300, replace=False)].astype(int):
+    for x, y, z in tri[rng.choice(len(tri), 300, replace=False), :3].astype(int):
         th = {p: np.arccos(stored[tuple(sorted(p))]) for p in ((x, y), (x, z), (y, z))}
         (a, b), _ = min(th.items(), key=lambda kv: kv[1])  # the closest pair first
         c = ({x, y, z} - {a, b}).pop()
@@ -120,7 +120,8 @@ def test_a_reused_index_looks_up_what_it_scans():
 
 def test_the_table_holds_every_triangle_of_the_index_in_its_cell():
     """Every three stars whose three pairs are in the index, once, in the cell of its
-    sorted side angles (counted by brute force on a small catalogue)."""
+    sorted side angles, with each side's quantum within its cell (counted by brute force
+    on a small catalogue)."""
     rng = np.random.default_rng(4)
     v = rng.normal(size=(250, 3))
     v /= np.linalg.norm(v, axis=1)[:, None]
@@ -129,15 +130,22 @@ def test_the_table_holds_every_triangle_of_the_index_in_its_cell():
     pairs = set(zip(index.pair_i.tolist(), index.pair_j.tolist(), strict=True))
     truth = {(i, j, k) for i, j, k in itertools.combinations(range(len(v)), 3)
              if (i, j) in pairs and (i, k) in pairs and (j, k) in pairs}
-    stored = [tuple(r) for r in t["tri"].tolist()]
+    stored = [tuple(r) for r in t["tri"][:, :3].tolist()]
+    quanta = t["tri"][:, 3].astype(int)
     assert len(stored) == len(truth) and set(stored) == truth
     n, h = int(t["n_cells"]), float(t["cell_rad"])
     cells = np.repeat(np.arange(len(t["offs"]) - 1), np.diff(t["offs"]))
-    for (i, j, k), cell in zip(stored[::7], cells[::7], strict=True):
+    Q = triangle_index.QUANTA
+    for (i, j, k), cell, qs in zip(stored[::7], cells[::7], quanta[::7], strict=True):
         s1, s2, s3 = sorted(np.arccos(np.clip([v[i] @ v[j], v[i] @ v[k], v[j] @ v[k]],
                                               -1, 1)))
         c = [min(int(x / h), n - 1) for x in (s1, s2, s3)]
         assert cell == c[2] * (c[2] + 1) * (c[2] + 2) // 6 + c[1] * (c[1] + 1) // 2 + c[0]
+        for x, ci, q in zip((s1, s2, s3), c, (qs & 31, (qs >> 5) & 31, qs >> 10),
+                            strict=True):
+            u = x / h
+            assert ci + q / Q - 1e-9 <= u
+            assert u < ci + (q + 1) / Q + 1e-9 or (ci == n - 1 and q == Q - 1)
     est = triangle_index.estimate_triangles(index)
     assert 0.5 * len(truth) < est < 2 * len(truth)
 

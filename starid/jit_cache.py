@@ -1,0 +1,109 @@
+"""numba's on-disk cache for the compiled kernels, keyed by every module a kernel module
+compiles in — not only its own file.
+
+Why: numba keys a cached function by its own source file. A kernel that calls kernels of
+another module (:mod:`starid.frame_kernels` calls :mod:`starid.kernels`, which calls
+:mod:`starid.triangle_index` and reads constants of :mod:`starid.index` and
+:mod:`starid.verify`) has their code compiled into its own; when only the other module
+changes — an upgrade, a ``git pull`` — numba still loads the old compiled code and runs it
+with the new Python around it. That happened here: the sky map's layout changed in
+``kernels.py``, the cached ``frame_kernels`` kept reading the old one, and every frame of
+noise lost its weak candidates. :func:`njit_cached` adds the contents of those modules
+(:data:`DEPENDS`) to the cache's source stamp, so a change to any of them recompiles.
+
+Use it as ``numba.njit(cache=True)`` in a module of :data:`DEPENDS`
+(``_jit = njit_cached(nogil=True)``; elsewhere it caches as numba does):
+
+Example:
+    >>> from adfusion.starid import frame_kernels, jit_cache
+    >>> jit_cache.DEPENDS["frame_kernels.py"][:2]
+    ('frame_kernels.py', 'kernels.py')
+    >>> type(frame_kernels.solve_frame._cache._impl.locator).__name__
+    '_DependsLocator'
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Callable
+
+import numba
+from numba.core import caching
+
+__all__ = ["DEPENDS", "njit_cached", "source_stamp"]
+
+#: the modules (files beside it) each kernel module compiles in, itself first; a module
+#: not named here is keyed by its own file, as numba does
+DEPENDS: dict[str, tuple[str, ...]] = {
+    "kernels.py": ("kernels.py", "triangle_index.py", "index.py", "verify.py"),
+    "frame_kernels.py": ("frame_kernels.py", "kernels.py", "triangle_index.py", "index.py",
+                         "verify.py"),
+}
+
+
+def source_stamp(py_file: str) -> str:
+    """SHA-256 of the contents of ``py_file``'s :data:`DEPENDS` (or of the file alone).
+
+    >>> import adfusion.starid.kernels as k
+    >>> source_stamp(k.__file__) != source_stamp(k.__file__.replace("kernels", "index"))
+    True
+    """
+    folder, name = os.path.split(os.path.abspath(py_file))
+    h = hashlib.sha256()
+    for dep in DEPENDS.get(name, (name,)):
+        with open(os.path.join(folder, dep), "rb") as f:
+            h.update(dep.encode() + b"\0" + f.read())
+    return h.hexdigest()
+
+
+# numba's cache implementation (CacheImpl since 0.62, _CacheImpl before)
+_IMPL = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+
+
+class _DependsLocator(caching._CacheLocator):
+    """numba's own locator for the file (cache directory, disambiguator), with
+    :func:`source_stamp` added to its source stamp."""
+
+    def __init__(self, inner: caching._CacheLocator, py_file: str) -> None:
+        self._inner = inner
+        self._py_file = py_file
+
+    def ensure_cache_path(self) -> None:
+        self._inner.ensure_cache_path()
+
+    def get_cache_path(self) -> str:
+        return self._inner.get_cache_path()
+
+    def get_source_stamp(self):
+        return self._inner.get_source_stamp(), source_stamp(self._py_file)
+
+    def get_disambiguator(self) -> str:
+        return self._inner.get_disambiguator()
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        if os.path.basename(py_file) not in DEPENDS or \
+                os.path.dirname(os.path.abspath(py_file)) != _HERE:
+            return None
+        for other in _IMPL._locator_classes:
+            if other is not cls:
+                inner = other.from_function(py_func, py_file)
+                if inner is not None:
+                    return cls(inner, py_file)
+        return None
+
+
+_HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def _register() -> None:
+    classes = _IMPL._locator_classes
+    if _DependsLocator not in classes:
+        classes.insert(0, _DependsLocator)
+
+
+def njit_cached(**options) -> Callable:
+    """``numba.njit(cache=True, **options)`` with the cache keyed by :data:`DEPENDS`."""
+    _register()
+    return numba.njit(cache=True, **options)
