@@ -38,6 +38,9 @@ from adfusion.starid.kernels import (
     _jit,
     _matrix_of,
     _to_vectors,
+    _window,
+    chirality,
+    quick_checks,
     refine_pinhole,
     search,
     triangle_store,
@@ -46,7 +49,7 @@ from adfusion.starid.kernels import (
 from numpy.typing import NDArray
 
 __all__ = ["ACCEPTED", "NONE", "PACKED_HEADER", "SEVERAL", "input_problem", "solve_frame",
-           "solve_frame_packed", "unpack"]
+           "solve_frame_packed", "unpack", "verify_weak"]
 
 # solve_frame() outcome
 NONE, ACCEPTED, SEVERAL = 0, 1, 2
@@ -376,6 +379,67 @@ def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
     else:
         weak = (_NO_FLOATS, _NO_ROWS)
     return outcome, sel, counter, n_acc, order, cands, refit, weak
+
+
+@_jit
+def verify_weak(ix, xy, M, off, tolerance_rad, rows, r_min_px, sigma0_px, pix):
+    """``Solver._unsolved``'s look at the weak candidates of a frame without an answer
+    (rows of :func:`solve_frame`'s weak list: pattern, guess, trial, n, sel (8),
+    assignment (8)), for a known ideal pinhole: each quick-checked again at its own trial
+    — the pattern's windows by :func:`starid.kernels._window`, its mirror sign by
+    :func:`starid.kernels.chirality`, as the search computed them — and fully verified
+    (:func:`starid.kernels.verify_candidate`). One call instead of a dozen a candidate.
+
+    Returns (ok (K,), n (K,), det (K, N), cat (K, N), q (K, 4), covariance (K, 3, 3),
+    residuals (K, N), p_false (K,)): candidate k's pairs det[k, :n[k]] → cat[k, :n[k]]
+    (catalogue rows), where ok[k]."""
+    n_xy = xy.shape[0]
+    b = _to_vectors(xy, M, off)
+    radius = r_min_px * pix
+    floor = math.sqrt(2.0) * sigma0_px * pix
+    sigma = sigma0_px * pix
+    k_all = rows.shape[0]
+    good = np.zeros(k_all, dtype=np.bool_)
+    counts = np.zeros(k_all, dtype=np.int64)
+    c_det = np.zeros((k_all, n_xy), dtype=np.int64)
+    c_cat = np.zeros((k_all, n_xy), dtype=np.int64)
+    c_q = np.zeros((k_all, 4))
+    c_cov = np.zeros((k_all, 3, 3))
+    c_res = np.zeros((k_all, n_xy))
+    c_p = np.ones(k_all)
+    for k in range(k_all):
+        trial, n = rows[k, 2], rows[k, 3]
+        sel = np.empty(n, dtype=np.int64)
+        assign = np.empty((1, n), dtype=np.int64)
+        bs = np.empty((n, 3))
+        for s in range(n):
+            sel[s], assign[0, s] = rows[k, 4 + s], rows[k, 12 + s]
+            for j in range(3):
+                bs[s, j] = b[sel[s], j]
+        ang, tol = np.empty((n, n)), np.empty((n, n))
+        t_max = -np.inf
+        for s in range(n):
+            for t in range(n):
+                ang[s, t], tol[s, t], _, _, _ = _window(b, sel[s], sel[t], tolerance_rad, 0.0)
+                t_max = max(t_max, tol[s, t])
+        mirror = chirality(bs, 2.0 * t_max) != 0
+        ok, _, rots, e_tr, det, cat, matched = quick_checks(
+            ix, b, sel, assign, ang, tol, mirror, trial, radius, floor)
+        if not ok[0]:
+            continue
+        fine, d, h, q, cov, res, p = verify_candidate(
+            ix, b, rots[0], e_tr[0], det[0, :matched[0]], cat[0, :matched[0]], sel,
+            assign[0], n_xy, radius, sigma)
+        if not fine:
+            continue
+        m = len(d)
+        good[k], counts[k], c_p[k] = True, m, p
+        c_det[k, :m] = d
+        c_cat[k, :m] = h
+        c_res[k, :m] = res
+        c_q[k] = q
+        c_cov[k] = cov
+    return good, counts, c_det, c_cat, c_q, c_cov, c_res, c_p
 
 
 @_jit

@@ -856,6 +856,9 @@ def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, r
     r = np.empty(3)
     w = np.zeros((n, n))
     area = 2 * np.pi * (1 - math.cos(max_sep))
+    in_pattern = np.zeros(n_det, dtype=np.bool_)
+    for s in range(n):
+        in_pattern[sel[s]] = True
     for k in range(n_k):
         anchor = assigns[k, 0]
         for s in range(n):
@@ -864,12 +867,24 @@ def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, r
         R, proper = _rotation(bs, vc)
         if not proper:
             continue
-        for d in range(n_det):
+        # the pattern's own detections first: one whose nearest star (within the radius)
+        # is not its assigned star cannot keep it, whatever the others find — about half
+        # of a noise frame's candidates end here, before the other detections are looked at
+        lost = False
+        for s in range(n + n_det):
+            d = sel[s] if s < n else s - n
+            if s >= n and in_pattern[d]:
+                continue
             for j in range(3):
                 r[j] = b_all[d, 0] * R[0, j] + b_all[d, 1] * R[1, j] + b_all[d, 2] * R[2, j]
             tgt[d], d2 = _nearest_in(v, nbr_idx, nbr_bin, max_sep, sky, m_sky, sky_rad, r,
                                      anchor, radius, bound2)
             dist[d] = math.sqrt(d2)
+            if s < n and tgt[d] != assigns[k, s]:
+                lost = True
+                break
+        if lost:
+            continue
         # one-to-one: a star claimed twice stays with the closer detection (ties: the
         # lower index); own[d] the star detection d keeps, or −1
         nm = 0

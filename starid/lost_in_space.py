@@ -245,19 +245,23 @@ class LostInSpace:
         verified for an operator (or a filter's prior), else "no match" with the budget
         note. ``b_cams`` and ``tables`` (None: computed here) are the guesses' directions
         and pair windows."""
-        if b_cams is None:
-            b_cams = [directions(cam, xy) for cam in cams]
-        if tables is None:
-            tables = [PairWindows.of(b, self.tolerance_rad, self._rel_tol) for b in b_cams]
         tried = run.tried
         best = run.best_weak(3)
-        if best:
+        if best and b_cams is None and tables is None and self._frame_path(cams):
+            shown = self._weak_verified(xy, cams[0], best)  # one compiled call
+        elif best:
             # nothing convincing: show the best few for an operator (or a filter's prior)
+            if b_cams is None:
+                b_cams = [directions(cam, xy) for cam in cams]
+            if tables is None:
+                tables = [PairWindows.of(b, self.tolerance_rad, self._rel_tol)
+                          for b in b_cams]
             shown = []
             for _, sel, a, _, ci, trial in best:
                 q = self._quick(b_cams[ci], tables[ci], sel, a[None], cams[ci], trial)[0]
                 if (c := self._verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
                     shown.append(c)
+        if best:
             reason = (f"ambiguous: weak evidence, the best candidate has p_false "
                       f"{best[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
             return Solution(False, reason, matching_counter=run.first_counter or 0,
@@ -265,6 +269,25 @@ class LostInSpace:
                             candidates=distinct_candidates(shown, 3 * self.tolerance_rad))
         reason = f"no match: {run.budget_note or f'{tried} patterns tried'}"
         return Solution(False, reason, matching_counter=run.first_counter or 0)
+
+    def _weak_verified(self, xy: NDArray, cam: Camera, best: list[tuple]) -> list[Candidate]:
+        """:meth:`_unsolved`'s quick check and verification of the weak candidates ``best``
+        (:meth:`Search.best_weak`'s tuples) for a known ideal pinhole, in one compiled call
+        (:func:`starid.frame_kernels.verify_weak`): the candidates the Python loop makes."""
+        rows = np.zeros((len(best), 20), dtype=np.int64)
+        for r, (_, sel, a, _, _, trial) in enumerate(best):
+            rows[r, 2], rows[r, 3] = trial, len(sel)
+            rows[r, 4:4 + len(sel)], rows[r, 12:12 + len(sel)] = sel, a
+        M, off = cam._ideal_pinhole[:2]
+        ok, n, det, cat, q, cov, res, p = frame_kernels.verify_weak(
+            self._ix, np.ascontiguousarray(xy, dtype=np.float64), M, off, self.tolerance_rad,
+            rows, self._match_radius_px(), self.centroid_sigma_px, cam.pixel_scale_rad)
+        return [Candidate(q_cam_icrs=q[k], matches=list(zip(
+                    det[k, :n[k]].tolist(), self.ids[cat[k, :n[k]]].tolist(), strict=True)),
+                          residuals_rad=res[k, :n[k]], p_false=float(p[k]),
+                          n_pattern=len(best[k][1]), camera=cam, covariance=cov[k],
+                          _projector=self._project)
+                for k in range(len(best)) if ok[k]]
 
     def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
