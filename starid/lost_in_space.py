@@ -29,8 +29,8 @@ from adfusion.starid.triangle_index import triangles_for
 from adfusion.starid.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
 
-__all__ = ["EVIDENCE_RATIO", "MAX_BUDGET_SCALES", "SHARED_FRACTION", "LostInSpace",
-           "PairWindows", "Search", "resolve_by_evidence"]
+__all__ = ["EVIDENCE_RATIO", "MAX_BUDGET_SCALES", "REST_CHECK_SHARE", "SHARED_FRACTION",
+           "LostInSpace", "PairWindows", "Search", "resolve_by_evidence"]
 
 
 #: focal guesses the trial budget grows with (beyond, a frame gets fewer patterns per guess)
@@ -43,6 +43,10 @@ _REFIT_CONSTANTS = (_REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR, float(_PRI
 _SCRATCH = threading.local()
 # one table built at a time (solvers shared across threads)
 _TRIANGLES_LOCK = threading.Lock()
+_FLOAT64 = np.dtype(np.float64)  # (an identity test: cheaper than comparing dtypes)
+#: a lost-in-space fix explaining fewer than this share of the detections the search used
+#: has the rest of them searched too (``Solver._rest_checked``)
+REST_CHECK_SHARE = 0.5
 # kernels.search's state at a frame's first trial (copied: cheaper than building it)
 _STATE0 = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
 
@@ -289,6 +293,74 @@ class LostInSpace:
                           _projector=self._project)
                 for k in range(len(best)) if ok[k]]
 
+    def _solve_lean(self, arr: NDArray[np.float64], t0: float) -> Solution | None:
+        """``solve(arr)`` without a prior, for the common case — detections an (N, 2)
+        C-contiguous float64 array, the n-star method, a known ideal pinhole refitted in
+        the kernel — with a few Python steps instead of the general path's layers (about
+        a third of a clean frame's time was Python around the kernel): the same
+        solution, or None (the general path takes over) for input the check refuses or
+        any other set-up. A frame whose first call ends otherwise than in one refitted
+        attitude continues in :meth:`_frame_solution` from that call's result."""
+        lean, cam = self._lean, self.camera
+        if lean is None or (lean and lean[0] is not cam):
+            lean = self._lean = self._lean_setup()
+        if not (lean and self._frame_kernel and self._compiled_verify
+                and self._compiled_refine) or arr.dtype is not _FLOAT64 \
+                or arr.ndim != 2 or arr.shape[1] != 2 or not arr.flags.c_contiguous \
+                or len(arr) < 3:
+            return None
+        size = lean[1]
+        n_all = len(arr)
+        n = min(n_all, self.max_detections)
+        if frame_kernels.input_problem(arr, n, *size)[0]:
+            return None  # the general path says what is wrong
+        xy = arr[:n]
+        pats, plen, paths = self._pattern_list(n, False)
+        walk = self._fresh_walk()
+        ints, floats = self._frame_call(xy, arr, cam, walk, pats, plen, lean[2],
+                                        self.work_budget, True)
+        if ints[0] == frame_kernels.ACCEPTED and ints[5] == 1:  # one attitude, refitted
+            _, sel, counter, _, order, cands, refit, _ = frame_kernels.unpack(ints, floats)
+            found = [Candidate(q_cam_icrs=q, matches=list(zip(d, h, strict=True)),
+                               residuals_rad=res, p_false=p, n_pattern=len(sel), camera=cam,
+                               covariance=cov, _projector=self._project)
+                     for d, h, q, cov, res, p in cands]
+            _, d, h, rq, rcov, rres, sigma_px, rejected = refit
+            state = walk[0]
+            sol = Solution(
+                True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
+                matching_counter=counter, covariance=rcov, p_false=found[order[0]].p_false,
+                path=paths[state[0]], candidates=found, residuals_rad=rres, camera=cam,
+                sigma_px=sigma_px,
+                note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+                time_s=time.perf_counter() - t0, n_detections=n,
+                patterns_tried=int(state[2]))
+            if n_all == n and (len(d) >= REST_CHECK_SHARE * n
+                               or n - len(d) < max(self.n_min, 3)):
+                return sol  # what _rest_checked decides of it, without the call
+        else:
+            sol, tried, filled = self._frame_solution(xy, cam, arr, None, None, t0,
+                                                      first=(walk, ints, floats))
+            if not filled:
+                sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=n,
+                              patterns_tried=tried)
+        return self._rest_checked(sol, arr, xy, t0)
+
+    _lean: tuple | bool | None = None  # _lean_setup's answer, once
+
+    def _lean_setup(self) -> tuple | bool:
+        """What :meth:`_solve_lean` takes of this solver — (its camera, the input check's
+        frame size and slack, the trial budget) — or False when its general path is
+        needed (another
+        method, an uncertain or distorted camera, a camera fit, the numpy matchers; the
+        compiled paths' switches are read on every call)."""
+        cam = self.camera
+        if not (self.method == "nstar" and self._compiled and not self._fov_uncertain
+                and cam._ideal_pinhole is not None and self._fit_terms() is None):
+            return False
+        return (cam, (float(cam.width), float(cam.height), 0.5 * max(cam.width, cam.height)),
+                self._trial_budget(1))
+
     def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
         """:meth:`_solve_at`, then the accepted fix refitted on every detection ``xy_all``
@@ -304,21 +376,26 @@ class LostInSpace:
 
     _frame_kernel = True  # False: the search, verification and refit called one by one
 
-    def _frame_camera(self, cam: Camera) -> tuple:
-        """What :func:`starid.frame_kernels.solve_frame` takes of an ideal pinhole ``cam``:
-        its affine maps, size, the view's half-diagonal + 1e-3 rad and the pixel scale
-        (kept for the solver's own camera: a few µs a frame)."""
-        kept = self._frame_camera_kept
+    def _frame_args(self, cam: Camera) -> tuple[tuple, tuple]:
+        """What :func:`starid.frame_kernels.solve_frame` takes of the solver and an ideal
+        pinhole ``cam`` that does not change from frame to frame: (its affine maps, size,
+        the view's half-diagonal + 1e-3 rad, the pixel scale and the tolerance), then (the
+        match radius and centroid σ in px, the acceptance threshold, the distinct-attitude
+        angle) — kept for the solver's own camera: a few µs a frame."""
+        kept = self._frame_args_kept
         if kept is not None and kept[0] is cam:
             return kept[1]
         M, off, A, c = cam._ideal_pinhole
-        out = (M, off, A, c, float(cam.width), float(cam.height),
-               0.5 * math.radians(cam.diagonal_fov_deg) + 1e-3, float(cam.pixel_scale_rad))
+        out = ((M, off, A, c, float(cam.width), float(cam.height),
+                0.5 * math.radians(cam.diagonal_fov_deg) + 1e-3, float(cam.pixel_scale_rad),
+                float(self.tolerance_rad)),
+               (self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
+                3 * self.tolerance_rad))
         if cam is self.camera:
-            self._frame_camera_kept = (cam, out)
+            self._frame_args_kept = (cam, out)
         return out
 
-    _frame_camera_kept: tuple | None = None
+    _frame_args_kept: tuple | None = None
 
     _triangles_done = False  # _with_triangles ran (whether or not it found a table)
 
@@ -378,17 +455,40 @@ class LostInSpace:
                           patterns_tried=tried)
         return sol, tried
 
+    def _frame_call(self, xy: NDArray, refit_xy: NDArray, cam: Camera, walk: tuple,
+                    pats: NDArray, plen: NDArray, budget: int, work: int,
+                    refine: bool) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """One call of :func:`starid.frame_kernels.solve_frame_packed` on contiguous
+        detections ``xy`` (and ``refit_xy``), continuing the walk ``walk`` (state, no-match
+        sets, their counts: :meth:`_fresh_walk`)."""
+        state, no_match, n_no_match = walk
+        before, after = self._frame_args(cam)
+        try:
+            return frame_kernels.solve_frame_packed(
+                self.ids, self._ix, xy, refit_xy, *before, state, pats, plen, budget,
+                no_match, n_no_match, work, self._scratch(), *after, refine,
+                _REFIT_CONSTANTS)
+        except BaseException:
+            self._drop_scratch()
+            raise
+
+    def _fresh_walk(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """A search's start for :meth:`_frame_call`: state, no-match sets, their counts."""
+        return (_STATE0.copy(), np.zeros((1, self.max_patterns + 2), dtype=np.int64),
+                np.zeros(1, dtype=np.int64))
+
     def _frame_solution(self, xy: NDArray, cam: Camera, xy_all: NDArray | None,
                         per_guess: int | None, work_budget: int | None,
-                        t0: float | None) -> tuple[Solution, int, bool]:
+                        t0: float | None, first: tuple | None = None,
+                        ) -> tuple[Solution, int, bool]:
         """The work of :meth:`_solve_frame`: (solution, trials, whether the solution has its
         time, detections and trials filled in — the common outcome, one attitude refitted
-        in the kernel, has when ``t0`` is given)."""
+        in the kernel, has when ``t0`` is given). ``first``: the walk and the result of
+        the first call, already made (:meth:`_solve_lean`)."""
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
-        state = _STATE0.copy()
-        no_match = np.zeros((1, self.max_patterns + 2), dtype=np.int64)
-        n_no_match = np.zeros(1, dtype=np.int64)
+        walk = self._fresh_walk() if first is None else first[0]
+        state = walk[0]
         budget = self._trial_budget(1, per_guess)
         work = self.work_budget if work_budget is None else min(work_budget, self.work_budget)
         refine = (xy_all is not None and self._compiled_refine
@@ -399,15 +499,11 @@ class LostInSpace:
         refit_xy = np.ascontiguousarray(xy_all, dtype=np.float64) if refine else xy
         weak_rows = []
         while True:
-            try:
-                ints, floats = frame_kernels.solve_frame_packed(
-                    self.ids, self._ix, xy, refit_xy, *self._frame_camera(cam),
-                    self.tolerance_rad, state, pats, plen, budget, no_match, n_no_match,
-                    work, self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
-                    self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)
-            except BaseException:
-                self._drop_scratch()
-                raise
+            if first is None:
+                ints, floats = self._frame_call(xy, refit_xy, cam, walk, pats, plen, budget,
+                                                work, refine)
+            else:
+                (_, ints, floats), first = first, None
             outcome, sel, counter, n_acc, order, cands, refit, (wp, wi) = \
                 frame_kernels.unpack(ints, floats)
             if len(wp):

@@ -49,7 +49,13 @@ from adfusion.starid import rotations as rot
 from adfusion.starid.bleif_bridge import BleifBridge
 from adfusion.starid.camera import Camera
 from adfusion.starid.index import PatternIndex, catalog_cache_tag
-from adfusion.starid.lost_in_space import EVIDENCE_RATIO, LostInSpace, PairWindows, Search
+from adfusion.starid.lost_in_space import (
+    EVIDENCE_RATIO,
+    REST_CHECK_SHARE,
+    LostInSpace,
+    PairWindows,
+    Search,
+)
 from adfusion.starid.nstar import Pattern, match_faithful, match_indexed
 from adfusion.starid.refine import Refinement
 from adfusion.starid.solution import Candidate, Prior, Solution
@@ -73,9 +79,6 @@ __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 # a tracking fix matching fewer than this share of min(predicted, detections) is checked
 # against lost-in-space on the same frame (Solver._cross_checked)
 _CROSS_CHECK_SHARE = 0.5
-# a lost-in-space fix explaining fewer than this share of the detections the search used
-# has the rest of them searched too (Solver._rest_checked)
-_REST_CHECK_SHARE = 0.5
 # patterns the rest of a frame is searched with (stars left over in numbers are found in
 # the first few; the full budget on a rest of noise would cost ~10× the fix)
 _CHECK_PATTERNS = 20
@@ -271,6 +274,10 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         shape raises.
         """
         t0 = time.perf_counter()
+        if prior is None and type(detections) is np.ndarray:
+            sol = self._solve_lean(detections, t0)
+            if sol is not None:
+                return sol
         xy, problem = self._parse(detections, min_count=2 if prior is not None else 3)
         if problem:
             return Solution(False, problem, time_s=time.perf_counter() - t0,
@@ -325,10 +332,15 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         ambiguous; a rest that holds nothing leaves the fix as it was."""
         if not sol.ok or self.method != "nstar":
             return sol
-        used = {d for d, _ in sol.matches if d < len(xy)}
-        if (len(used) >= _REST_CHECK_SHARE * len(xy)
-                or len(xy) - len(used) < max(self.n_min, 3)):
+        # the search's detections used: matches are one pair per detection, so with none
+        # past the search's, their count (the common case: no set to build)
+        n_all = len(detections.xy if hasattr(detections, "xy") else detections)
+        n_used = (len(sol.matches) if n_all <= len(xy)
+                  else len({d for d, _ in sol.matches if d < len(xy)}))
+        if (n_used >= REST_CHECK_SHARE * len(xy)
+                or len(xy) - n_used < max(self.n_min, 3)):
             return sol
+        used = {d for d, _ in sol.matches if d < len(xy)}
         rest = np.array([i for i in range(len(xy)) if i not in used], dtype=np.int64)
         # the camera the fix fitted; the first patterns of the rest (its brightest): stars
         # left over in numbers are found there, and a rest of noise costs little

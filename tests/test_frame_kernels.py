@@ -332,3 +332,46 @@ def test_the_kept_first_three_star_assignments_are_bounded():
     past = [v for v in store[0].values() if v[0, 0] > 12_000 and v[0, 1] == 3]
     assert past and all(len(v) == 1 for v in past)
     assert max(len(v) - 1 for v in store[0].values()) <= 12_000
+
+
+def test_the_lean_path_solves_every_frame_as_the_general_path_does(cat):
+    """Solver.solve takes a short path for an (N, 2) float64 array without a prior
+    (LostInSpace._solve_lean); the same detections as a list go the general way. Every
+    field alike, on frames that end every way: identified (refit, rest of the frame
+    checked), several attitudes, weak candidates, nothing found, more detections than
+    the search uses (some outside the frame), and input the check refuses."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    rng = np.random.default_rng(57)
+    outcomes, calls = set(), []
+    orig = solver._frame_solution
+
+    def counted(*a, **k):
+        calls.append("first" in k)
+        return orig(*a, **k)
+
+    solver._frame_solution = counted
+    frames = []
+    for k in range(40):
+        kind = k % 5
+        if kind == 4:  # noise: weak candidates or nothing
+            xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1],
+                             (int(rng.integers(3, 12)), 2))
+        else:
+            xy, _ = sky_frame(cat, cam, rng, n_false=(0, 3, 8, 25)[kind], drop=0.2 * kind)
+        if kind == 3 and len(xy) > solver.max_detections:
+            xy[-1] = (-300.0, 50.0)  # past the search's detections, outside the frame
+        frames.append(np.ascontiguousarray(xy))
+    frames.append(np.array([[1.0, 2.0], [1.0, 2.0], [300.0, 40.0], [50.0, 500.0]]))
+    frames.append(np.array([[1.0, 2.0], [np.nan, 2.0], [300.0, 40.0]]))
+    for xy in frames:
+        a = solver.solve(xy)
+        b = solver.solve(xy.tolist())
+        _same(a, b)
+        assert a.n_detections == b.n_detections and a.patterns_tried == b.patterns_tried
+        outcomes.add("ok" if a.ok else a.reason.split(":")[0])
+        if a.ok and len(xy) > solver.max_detections:
+            outcomes.add("beyond the search's detections")
+    assert {"ok", "ambiguous", "bad input", "beyond the search's detections"} <= outcomes
+    assert isinstance(solver._lean, tuple)  # the lean path ran
+    assert any(calls)  # and some frames continued from its first call

@@ -200,3 +200,8 @@ def test_a_lost_in_space_fix_explaining_few_detections_yields_to_the_rest():
     assert sol.ok and "two attitudes" in sol.note
     assert np.degrees(rot.angle_between(sol.q_cam_icrs, q)) < 0.05
     assert len(sol.matches) >= 20
+    # its first 30 detections, none past the search's: Solver.solve's lean path decides
+    # whether the rest is searched without the general path's call
+    sol30 = solver.solve(np.ascontiguousarray(dets[:30]))
+    assert sol30.ok and "two attitudes" in sol30.note
+    assert np.degrees(rot.angle_between(sol30.q_cam_icrs, q)) < 0.05
