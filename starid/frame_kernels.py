@@ -113,6 +113,15 @@ def _cone(ix, axis, half_rad, anchor, theta):
 
 
 @_jit
+def _candidate_arrays(n_k, n_xy):
+    """Room for ``n_k`` verified candidates of ``n_xy`` detections: pair counts,
+    detections, catalogue rows, q, covariance, residuals, p_false (all zero)."""
+    return (np.zeros(n_k, dtype=np.int64), np.zeros((n_k, n_xy), dtype=np.int64),
+            np.zeros((n_k, n_xy), dtype=np.int64), np.zeros((n_k, 4)),
+            np.zeros((n_k, 3, 3)), np.zeros((n_k, n_xy)), np.zeros(n_k))
+
+
+@_jit
 def _refit(ix, q, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, height, view_half,
            pix, r_min, sigma0, consts):
     """:func:`starid.kernels.refine_pinhole` of an accepted candidate, on a cone around
@@ -196,13 +205,7 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
             return NONE, sel, 0, cands, empty_i, 0, no_refit, (wp_all, wi_all)
         ok, pq, rots, e_tr, det, cat, matched = q
         n_k = len(rows)
-        c_n = np.zeros(n_k, dtype=np.int64)
-        c_det = np.zeros((n_k, n_xy), dtype=np.int64)
-        c_cat = np.zeros((n_k, n_xy), dtype=np.int64)
-        c_q = np.zeros((n_k, 4))
-        c_cov = np.zeros((n_k, 3, 3))
-        c_res = np.zeros((n_k, n_xy))
-        c_p = np.zeros(n_k)
+        c_n, c_det, c_cat, c_q, c_cov, c_res, c_p = _candidate_arrays(n_k, n_xy)
         c_row = np.zeros(n_k, dtype=np.int64)
         nc = 0
         for k in range(n_k):
@@ -400,13 +403,7 @@ def verify_weak(ix, xy, M, off, tolerance_rad, rows, r_min_px, sigma0_px, pix):
     sigma = sigma0_px * pix
     k_all = rows.shape[0]
     good = np.zeros(k_all, dtype=np.bool_)
-    counts = np.zeros(k_all, dtype=np.int64)
-    c_det = np.zeros((k_all, n_xy), dtype=np.int64)
-    c_cat = np.zeros((k_all, n_xy), dtype=np.int64)
-    c_q = np.zeros((k_all, 4))
-    c_cov = np.zeros((k_all, 3, 3))
-    c_res = np.zeros((k_all, n_xy))
-    c_p = np.ones(k_all)
+    counts, c_det, c_cat, c_q, c_cov, c_res, c_p = _candidate_arrays(k_all, n_xy)
     for k in range(k_all):
         trial, n = rows[k, 2], rows[k, 3]
         sel = np.empty(n, dtype=np.int64)
