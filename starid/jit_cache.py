@@ -10,6 +10,8 @@ with the new Python around it. That happened here: the sky map's layout changed 
 ``kernels.py``, the cached ``frame_kernels`` kept reading the old one, and every frame of
 noise lost its weak candidates. :func:`njit_cached` adds the contents of those modules
 (:data:`DEPENDS`) to the cache's source stamp, so a change to any of them recompiles.
+Where the sources are no plain files (a zip, a frozen application) numba's own locators
+apply, and ``NUMBA_CACHE_LOCATOR_CLASSES``, when set, replaces every locator, this one too.
 
 Use it as ``numba.njit(cache=True)`` in a module of :data:`DEPENDS`
 (``_jit = njit_cached(nogil=True)``; elsewhere it caches as numba does):
@@ -57,7 +59,7 @@ def source_stamp(py_file: str) -> str:
     return h.hexdigest()
 
 
-# numba's cache implementation (CacheImpl since 0.62, _CacheImpl before)
+# numba's cache implementation (CacheImpl; _CacheImpl in older releases)
 _IMPL = getattr(caching, "CacheImpl", None) or caching._CacheImpl
 
 
@@ -83,8 +85,10 @@ class _DependsLocator(caching._CacheLocator):
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        if os.path.basename(py_file) not in DEPENDS or \
-                os.path.dirname(os.path.abspath(py_file)) != _HERE:
+        folder, name = os.path.split(os.path.abspath(py_file))
+        # numba's own locators where the sources are not plain files (a zip, a frozen app)
+        if name not in DEPENDS or folder != _HERE or not all(
+                os.path.isfile(os.path.join(folder, dep)) for dep in DEPENDS[name]):
             return None
         for other in _IMPL._locator_classes:
             if other is not cls:

@@ -302,12 +302,14 @@ class LostInSpace:
         any other set-up. A frame whose first call ends otherwise than in one refitted
         attitude continues in :meth:`_frame_solution` from that call's result."""
         lean, cam = self._lean, self.camera
-        if lean is None or (lean and lean[0] is not cam):
-            lean = self._lean = self._lean_setup()
-        if not (lean and self._frame_kernel and self._compiled_verify
-                and self._compiled_refine) or arr.dtype is not _FLOAT64 \
-                or arr.ndim != 2 or arr.shape[1] != 2 or not arr.flags.c_contiguous \
-                or len(arr) < 3:
+        if lean is None or lean[0] is not cam:
+            lean = self._lean = self._lean_camera(cam)
+        # the settings are read on every call: a solver's may change after its first solve
+        if not (lean[1] is not None and self.method == "nstar" and self._compiled
+                and self._frame_kernel and self._compiled_verify and self._compiled_refine
+                and not self._fov_uncertain and self._fit_terms() is None) \
+                or arr.dtype is not _FLOAT64 or arr.ndim != 2 or arr.shape[1] != 2 \
+                or not arr.flags.c_contiguous or len(arr) < 3:
             return None
         size = lean[1]
         n_all = len(arr)
@@ -317,8 +319,8 @@ class LostInSpace:
         xy = arr[:n]
         pats, plen, paths = self._pattern_list(n, False)
         walk = self._fresh_walk()
-        ints, floats = self._frame_call(xy, arr, cam, walk, pats, plen, lean[2],
-                                        self.work_budget, True)
+        ints, floats = self._frame_call(xy, arr, cam, walk, pats, plen,
+                                        self._trial_budget(1), self.work_budget, True)
         if ints[0] == frame_kernels.ACCEPTED and ints[5] == 1:  # one attitude, refitted
             _, sel, counter, _, order, cands, refit, _ = frame_kernels.unpack(ints, floats)
             found = [Candidate(q_cam_icrs=q, matches=list(zip(d, h, strict=True)),
@@ -346,20 +348,15 @@ class LostInSpace:
                               patterns_tried=tried)
         return self._rest_checked(sol, arr, xy, t0)
 
-    _lean: tuple | bool | None = None  # _lean_setup's answer, once
+    _lean: tuple | None = None  # _lean_camera's answer for the solver's camera
 
-    def _lean_setup(self) -> tuple | bool:
-        """What :meth:`_solve_lean` takes of this solver — (its camera, the input check's
-        frame size and slack, the trial budget) — or False when its general path is
-        needed (another
-        method, an uncertain or distorted camera, a camera fit, the numpy matchers; the
-        compiled paths' switches are read on every call)."""
-        cam = self.camera
-        if not (self.method == "nstar" and self._compiled and not self._fov_uncertain
-                and cam._ideal_pinhole is not None and self._fit_terms() is None):
-            return False
-        return (cam, (float(cam.width), float(cam.height), 0.5 * max(cam.width, cam.height)),
-                self._trial_budget(1))
+    @staticmethod
+    def _lean_camera(cam: Camera) -> tuple:
+        """What :meth:`_solve_lean` keeps of the camera: (the camera, the input check's
+        frame size and slack — None for a camera that is no ideal pinhole)."""
+        size = ((float(cam.width), float(cam.height), 0.5 * max(cam.width, cam.height))
+                if cam._ideal_pinhole is not None else None)
+        return cam, size
 
     def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
@@ -376,26 +373,21 @@ class LostInSpace:
 
     _frame_kernel = True  # False: the search, verification and refit called one by one
 
-    def _frame_args(self, cam: Camera) -> tuple[tuple, tuple]:
-        """What :func:`starid.frame_kernels.solve_frame` takes of the solver and an ideal
-        pinhole ``cam`` that does not change from frame to frame: (its affine maps, size,
-        the view's half-diagonal + 1e-3 rad, the pixel scale and the tolerance), then (the
-        match radius and centroid σ in px, the acceptance threshold, the distinct-attitude
-        angle) — kept for the solver's own camera: a few µs a frame."""
-        kept = self._frame_args_kept
+    def _frame_camera(self, cam: Camera) -> tuple:
+        """What :func:`starid.frame_kernels.solve_frame` takes of an ideal pinhole ``cam``:
+        its affine maps, size, the view's half-diagonal + 1e-3 rad and the pixel scale
+        (kept for the solver's own camera: a few µs a frame)."""
+        kept = self._frame_camera_kept
         if kept is not None and kept[0] is cam:
             return kept[1]
         M, off, A, c = cam._ideal_pinhole
-        out = ((M, off, A, c, float(cam.width), float(cam.height),
-                0.5 * math.radians(cam.diagonal_fov_deg) + 1e-3, float(cam.pixel_scale_rad),
-                float(self.tolerance_rad)),
-               (self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
-                3 * self.tolerance_rad))
+        out = (M, off, A, c, float(cam.width), float(cam.height),
+               0.5 * math.radians(cam.diagonal_fov_deg) + 1e-3, float(cam.pixel_scale_rad))
         if cam is self.camera:
-            self._frame_args_kept = (cam, out)
+            self._frame_camera_kept = (cam, out)
         return out
 
-    _frame_args_kept: tuple | None = None
+    _frame_camera_kept: tuple | None = None
 
     _triangles_done = False  # _with_triangles ran (whether or not it found a table)
 
@@ -462,12 +454,12 @@ class LostInSpace:
         detections ``xy`` (and ``refit_xy``), continuing the walk ``walk`` (state, no-match
         sets, their counts: :meth:`_fresh_walk`)."""
         state, no_match, n_no_match = walk
-        before, after = self._frame_args(cam)
         try:
             return frame_kernels.solve_frame_packed(
-                self.ids, self._ix, xy, refit_xy, *before, state, pats, plen, budget,
-                no_match, n_no_match, work, self._scratch(), *after, refine,
-                _REFIT_CONSTANTS)
+                self.ids, self._ix, xy, refit_xy, *self._frame_camera(cam),
+                self.tolerance_rad, state, pats, plen, budget, no_match, n_no_match,
+                work, self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
+                self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)
         except BaseException:
             self._drop_scratch()
             raise

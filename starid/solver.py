@@ -465,6 +465,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
         table = PairWindows.of(b_all, self.tolerance_rad, 0.0)
         self._quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)
+        if self._frame_path([self.camera]):  # and its compiled form (frames of noise)
+            self._weak_verified(np.ascontiguousarray(pxy[:3]), self.camera,
+                                [(1.0, np.arange(3), idx[:3], "", 0, 1)])
         return solved
 
     def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.int64], NDArray[np.float64]]:

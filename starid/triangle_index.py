@@ -39,8 +39,10 @@ __all__ = ["CELLS_MAX", "DEFAULT_MAX_MB", "cell_rad_for", "estimate_triangles", 
 
 _jit = numba.njit(cache=True, nogil=True)
 
-#: the table's bound (MiB) by default; past it, no table (the pair windows are scanned)
-DEFAULT_MAX_MB = 256.0
+#: the table's bound (MiB) by default; past it, no table (the pair windows are scanned).
+#: 340: the catalogues and fields that had a table at 6 bytes a row under 256 MiB keep it
+#: at 8 (the sides' quanta)
+DEFAULT_MAX_MB = 340.0
 #: cells per side angle at most (the cell table has ~CELLS_MAX³/6 entries)
 CELLS_MAX = 300
 TRIANGLE_LAYOUT = 2  # bump when the stored arrays change
@@ -52,7 +54,7 @@ QUANTA = 32
 
 
 def max_bytes() -> int:
-    """The table's bound: ``$ADFUSION_TRIANGLES_MAX_MB`` MiB (default 256; 0: never a
+    """The table's bound: ``$ADFUSION_TRIANGLES_MAX_MB`` MiB (default 340; 0: never a
     table).
 
     >>> max_bytes() > 0

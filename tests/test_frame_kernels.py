@@ -21,8 +21,9 @@ def cat():
     return starid.Catalog.hipparcos(mag_limit=6.0, epoch=2025.0)
 
 
-def _same(a, b) -> None:
-    """Two solutions of one frame: every field equal (the same arithmetic runs in both)."""
+def _same(a, b, fitted: bool = False) -> None:
+    """Two solutions of one frame: every field equal (the same arithmetic runs in both);
+    ``fitted``: each solve fitted a camera of its own (equal, not the same object)."""
     for f in ("ok", "reason", "path", "patterns_tried", "matches", "matching_counter",
               "note", "sigma_px", "n_detections", "mode"):
         assert getattr(a, f) == getattr(b, f), f
@@ -33,7 +34,10 @@ def _same(a, b) -> None:
         np.testing.assert_array_equal(a.q_cam_icrs, b.q_cam_icrs)
         np.testing.assert_array_equal(a.covariance, b.covariance)
         np.testing.assert_array_equal(a.residuals_rad, b.residuals_rad)
-        assert a.camera is b.camera
+        if fitted:
+            assert a.camera.fov_x_deg == b.camera.fov_x_deg
+        else:
+            assert a.camera is b.camera
 
 
 @pytest.mark.parametrize("sigma_px, n_false, drop, kind", [
@@ -375,3 +379,25 @@ def test_the_lean_path_solves_every_frame_as_the_general_path_does(cat):
     assert {"ok", "ambiguous", "bad input", "beyond the search's detections"} <= outcomes
     assert isinstance(solver._lean, tuple)  # the lean path ran
     assert any(calls)  # and some frames continued from its first call
+
+
+def test_the_lean_path_follows_settings_changed_after_the_first_solve(cat):
+    """The lean path keeps only what it takes of the camera: a threshold, a budget, a
+    camera fit or the numpy matchers set after a solve apply to the next one, on an
+    array as on a list, as in a solver made with them."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    rng = np.random.default_rng(8)
+    sky = [np.ascontiguousarray(sky_frame(cat, cam, rng, n_false=3)[0]) for _ in range(3)]
+    noise = [rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2)) for _ in range(2)]
+    for name, value in (("p_false_max", 1e-40), ("max_patterns", 5), ("fit_camera", "focal"),
+                        ("_compiled", False)):
+        solver = starid.Solver(cat, cam)
+        solver.solve(sky[0])  # the lean path set up
+        setattr(solver, name, value)
+        fresh = starid.Solver(cat, cam)
+        setattr(fresh, name, value)
+        fitted = name == "fit_camera"
+        for xy in sky + noise:
+            a = solver.solve(xy)
+            _same(a, solver.solve(xy.tolist()), fitted)
+            _same(a, fresh.solve(xy.tolist()), fitted)

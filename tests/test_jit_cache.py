@@ -49,3 +49,35 @@ def test_every_module_a_kernel_module_imports_is_in_its_stamp():
                     and node.module.startswith("adfusion.starid.")}
         imported.discard("jit_cache.py")
         assert deps[0] == name and imported <= set(deps), (name, imported - set(deps))
+
+
+def test_sources_that_are_no_plain_files_keep_numbas_own_cache(tmp_path, monkeypatch):
+    """In a zip or a frozen application the modules beside a kernel module cannot be
+    read: numba's own locators take over (the import failed with NotADirectoryError)."""
+    shutil.copy(STARID / "frame_kernels.py", tmp_path / "frame_kernels.py")
+    monkeypatch.setattr(jit_cache, "_HERE", str(tmp_path))
+    py_func = frame_kernels.solve_frame.py_func
+    assert jit_cache._DependsLocator.from_function(
+        py_func, str(tmp_path / "frame_kernels.py")) is None
+    for name in jit_cache.DEPENDS["frame_kernels.py"]:
+        shutil.copy(STARID / name, tmp_path / name)
+    assert jit_cache._DependsLocator.from_function(
+        py_func, str(tmp_path / "frame_kernels.py")) is not None
+
+
+def test_warm_up_loads_every_kernel_a_frame_of_noise_needs():
+    """After Solver.warm_up, a frame that ends without an answer compiles nothing (the
+    first one after kernels.prepare() took 4.9 s compiling frame_kernels.verify_weak)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from adfusion import starid\n"
+        "from adfusion.starid import frame_kernels as f\n"
+        "s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),"
+        " starid.Camera.pinhole(1024, 768, 15.0))\n"
+        "s.warm_up(triangles=False)\n"
+        "print(len(f.verify_weak.signatures), len(f.solve_frame_packed.signatures))\n")
+    out = subprocess.run([sys.executable, "-P", "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["1", "1"]
