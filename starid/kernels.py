@@ -654,16 +654,23 @@ def _set_bit(words, c):
 
 
 @_jit_inline
+def _sky_bits(f, iu, iw, m):
+    """The bits of cell (face, row, column) of a map of m cells per face edge: in the
+    coarse copy (2³ × 2³ cells to a bit, first in the words), and its own (after it)."""
+    mc = m >> _COARSE_SHIFT
+    coarse = (f * mc + (iu >> _COARSE_SHIFT)) * mc + (iw >> _COARSE_SHIFT)
+    return coarse, ((6 * mc * mc + 63) >> 6) * 64 + (f * m + iu) * m + iw
+
+
+@_jit_inline
 def _sky_marked(words, m, r):
     """Whether direction r's cell of the map ``words`` (:func:`sky_map`, m cells per face
     edge) is marked: the coarse copy first (m being a multiple of 2³, a fine cell's
     coarse cell is its row and column shifted — :func:`_face_bin` scales by a power of
     two exactly)."""
     f, iu, iw = _sky_cell(r[0], r[1], r[2], m)
-    mc = m >> _COARSE_SHIFT
-    if not _bit(words, (f * mc + (iu >> _COARSE_SHIFT)) * mc + (iw >> _COARSE_SHIFT)):
-        return False
-    return _bit(words, ((6 * mc * mc + 63) >> 6) * 64 + (f * m + iu) * m + iw)
+    coarse, fine = _sky_bits(f, iu, iw, m)
+    return _bit(words, coarse) and _bit(words, fine)
 
 
 @_jit
@@ -688,7 +695,6 @@ def sky_map(v, radius_rad, m=SKY_CELLS):
     if m <= 0 or m % (1 << _COARSE_SHIFT):
         raise ValueError("the sky map's cells per face edge must be a multiple of 8")
     mc = m >> _COARSE_SHIFT
-    fine0 = ((6 * mc * mc + 63) >> 6) * 64  # the first fine cell's bit
     words = np.zeros(((6 * mc * mc + 63) >> 6) + ((6 * m * m + 63) >> 6), dtype=np.uint64)
     z_min = _FACE_Z_MIN - radius_rad  # along a cap's geodesics, on the face
     rho = radius_rad / (z_min * z_min) * (1.0 + 1e-6) + 1e-9
@@ -703,9 +709,9 @@ def sky_map(v, radius_rad, m=SKY_CELLS):
             u, w = v[s, o1] / z, v[s, o2] / z
             for iu in range(_face_bin(u - rho, m), _face_bin(u + rho, m) + 1):
                 for iw in range(_face_bin(w - rho, m), _face_bin(w + rho, m) + 1):
-                    _set_bit(words, fine0 + (f * m + iu) * m + iw)
-                    _set_bit(words, (f * mc + (iu >> _COARSE_SHIFT)) * mc
-                             + (iw >> _COARSE_SHIFT))
+                    coarse, fine = _sky_bits(f, iu, iw, m)
+                    _set_bit(words, coarse)
+                    _set_bit(words, fine)
     return words
 
 

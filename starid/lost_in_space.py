@@ -251,21 +251,22 @@ class LostInSpace:
         and pair windows."""
         tried = run.tried
         best = run.best_weak(3)
-        if best and b_cams is None and tables is None and self._frame_path(cams):
-            shown = self._weak_verified(xy, cams[0], best)  # one compiled call
-        elif best:
-            # nothing convincing: show the best few for an operator (or a filter's prior)
-            if b_cams is None:
-                b_cams = [directions(cam, xy) for cam in cams]
-            if tables is None:
-                tables = [PairWindows.of(b, self.tolerance_rad, self._rel_tol)
-                          for b in b_cams]
-            shown = []
-            for _, sel, a, _, ci, trial in best:
-                q = self._quick(b_cams[ci], tables[ci], sel, a[None], cams[ci], trial)[0]
-                if (c := self._verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
-                    shown.append(c)
         if best:
+            # nothing convincing: show the best few for an operator (or a filter's prior)
+            if b_cams is None and tables is None and self._frame_path(cams):
+                shown = self._weak_verified(xy, cams[0], best)  # one compiled call
+            else:
+                if b_cams is None:
+                    b_cams = [directions(cam, xy) for cam in cams]
+                if tables is None:
+                    tables = [PairWindows.of(b, self.tolerance_rad, self._rel_tol)
+                              for b in b_cams]
+                shown = []
+                for _, sel, a, _, ci, trial in best:
+                    q = self._quick(b_cams[ci], tables[ci], sel, a[None], cams[ci],
+                                    trial)[0]
+                    if (c := self._verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
+                        shown.append(c)
             reason = (f"ambiguous: weak evidence, the best candidate has p_false "
                       f"{best[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
             return Solution(False, reason, matching_counter=run.first_counter or 0,
@@ -286,11 +287,9 @@ class LostInSpace:
         ok, n, det, cat, q, cov, res, p = frame_kernels.verify_weak(
             self._ix, np.ascontiguousarray(xy, dtype=np.float64), M, off, self.tolerance_rad,
             rows, self._match_radius_px(), self.centroid_sigma_px, cam.pixel_scale_rad)
-        return [Candidate(q_cam_icrs=q[k], matches=list(zip(
-                    det[k, :n[k]].tolist(), self.ids[cat[k, :n[k]]].tolist(), strict=True)),
-                          residuals_rad=res[k, :n[k]], p_false=float(p[k]),
-                          n_pattern=len(best[k][1]), camera=cam, covariance=cov[k],
-                          _projector=self._project)
+        return [self._candidate(det[k, :n[k]].tolist(), self.ids[cat[k, :n[k]]].tolist(),
+                                q[k], cov[k], res[k, :n[k]], float(p[k]), len(best[k][1]),
+                                cam)
                 for k in range(len(best)) if ok[k]]
 
     def _solve_lean(self, arr: NDArray[np.float64], t0: float) -> Solution | None:
@@ -323,22 +322,12 @@ class LostInSpace:
                                         self._trial_budget(1), self.work_budget, True)
         if ints[0] == frame_kernels.ACCEPTED and ints[5] == 1:  # one attitude, refitted
             _, sel, counter, _, order, cands, refit, _ = frame_kernels.unpack(ints, floats)
-            found = [Candidate(q_cam_icrs=q, matches=list(zip(d, h, strict=True)),
-                               residuals_rad=res, p_false=p, n_pattern=len(sel), camera=cam,
-                               covariance=cov, _projector=self._project)
-                     for d, h, q, cov, res, p in cands]
-            _, d, h, rq, rcov, rres, sigma_px, rejected = refit
+            found = [self._candidate(*c, len(sel), cam) for c in cands]
             state = walk[0]
-            sol = Solution(
-                True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
-                matching_counter=counter, covariance=rcov, p_false=found[order[0]].p_false,
-                path=paths[state[0]], candidates=found, residuals_rad=rres, camera=cam,
-                sigma_px=sigma_px,
-                note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-                time_s=time.perf_counter() - t0, n_detections=n,
-                patterns_tried=int(state[2]))
-            if n_all == n and (len(d) >= REST_CHECK_SHARE * n
-                               or n - len(d) < max(self.n_min, 3)):
+            sol = self._refitted(refit, counter, found[order[0]], paths[state[0]], found, cam,
+                                 {"time_s": time.perf_counter() - t0, "n_detections": n,
+                                  "patterns_tried": int(state[2])})
+            if n_all == n and not self._rest_wanted(len(refit[1]), n):
                 return sol  # what _rest_checked decides of it, without the call
         else:
             sol, tried, filled = self._frame_solution(xy, cam, arr, None, None, t0,
@@ -347,6 +336,33 @@ class LostInSpace:
                 sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=n,
                               patterns_tried=tried)
         return self._rest_checked(sol, arr, xy, t0)
+
+    def _candidate(self, det: list[int], ids: list[int], q: NDArray, cov: NDArray,
+                   res: NDArray, p_false: float, n_pattern: int, cam: Camera) -> Candidate:
+        """A verified candidate of the compiled path: pairs detection → catalogue id."""
+        return Candidate(q_cam_icrs=q, matches=list(zip(det, ids, strict=True)),
+                         residuals_rad=res, p_false=p_false, n_pattern=n_pattern,
+                         camera=cam, covariance=cov, _projector=self._project)
+
+    @staticmethod
+    def _refitted(refit: tuple, counter: int, best: Candidate, path: str,
+                  found: list[Candidate], cam: Camera, done: dict) -> Solution:
+        """The solution of one accepted attitude ``best`` refitted in the kernel (``refit``:
+        :func:`starid.frame_kernels.unpack`'s, status 1), with ``done``'s fields (time,
+        detections, trials) when they are known."""
+        _, d, h, rq, rcov, rres, sigma_px, rejected = refit
+        return Solution(
+            True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
+            matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
+            candidates=found, residuals_rad=rres, camera=cam, sigma_px=sigma_px,
+            note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+            **done)
+
+    def _rest_wanted(self, n_used: int, n: int) -> bool:
+        """Whether a fix that explains ``n_used`` of the ``n`` detections the search used
+        has the rest searched too (``Solver._rest_checked``): fewer than
+        :data:`REST_CHECK_SHARE` of them, and enough left over for a pattern."""
+        return n_used < REST_CHECK_SHARE * n and n - n_used >= max(self.n_min, 3)
 
     _lean: tuple | None = None  # _lean_camera's answer for the solver's camera
 
@@ -515,10 +531,7 @@ class LostInSpace:
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
             return self._unsolved(xy, [cam], None, None, run), tried, False
-        found = [Candidate(q_cam_icrs=q, matches=list(zip(d, h, strict=True)),
-                           residuals_rad=res, p_false=p, n_pattern=len(sel), camera=cam,
-                           covariance=cov, _projector=self._project)
-                 for d, h, q, cov, res, p in cands]
+        found = [self._candidate(*c, len(sel), cam) for c in cands]
         path = paths[pos]
         accepted = [found[i] for i in order]
         if outcome == frame_kernels.SEVERAL:
@@ -533,15 +546,10 @@ class LostInSpace:
         best = accepted[0]
         status = refit[0]
         if status == 1:
-            _, d, h, rq, rcov, rres, sigma_px, rejected = refit
             done = {} if t0 is None else {"time_s": time.perf_counter() - t0,
                                           "n_detections": len(xy), "patterns_tried": tried}
-            return Solution(
-                True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
-                matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
-                candidates=found, residuals_rad=rres, camera=cam, sigma_px=sigma_px,
-                note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-                **done), tried, t0 is not None
+            return (self._refitted(refit, counter, best, path, found, cam, done), tried,
+                    t0 is not None)
         sol = self._solution(best, counter, path, found)
         if xy_all is not None and (status == -1 or not refine):
             # a cone the refit left, a degenerate fit, or a fitted camera: in Python

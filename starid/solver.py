@@ -49,13 +49,7 @@ from adfusion.starid import rotations as rot
 from adfusion.starid.bleif_bridge import BleifBridge
 from adfusion.starid.camera import Camera
 from adfusion.starid.index import PatternIndex, catalog_cache_tag
-from adfusion.starid.lost_in_space import (
-    EVIDENCE_RATIO,
-    REST_CHECK_SHARE,
-    LostInSpace,
-    PairWindows,
-    Search,
-)
+from adfusion.starid.lost_in_space import EVIDENCE_RATIO, LostInSpace, PairWindows, Search
 from adfusion.starid.nstar import Pattern, match_faithful, match_indexed
 from adfusion.starid.refine import Refinement
 from adfusion.starid.solution import Candidate, Prior, Solution
@@ -335,12 +329,11 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         # the search's detections used: matches are one pair per detection, so with none
         # past the search's, their count (the common case: no set to build)
         n_all = len(detections.xy if hasattr(detections, "xy") else detections)
-        n_used = (len(sol.matches) if n_all <= len(xy)
-                  else len({d for d, _ in sol.matches if d < len(xy)}))
-        if (n_used >= REST_CHECK_SHARE * len(xy)
-                or len(xy) - n_used < max(self.n_min, 3)):
+        used = None if n_all <= len(xy) else {d for d, _ in sol.matches if d < len(xy)}
+        if not self._rest_wanted(len(sol.matches) if used is None else len(used), len(xy)):
             return sol
-        used = {d for d, _ in sol.matches if d < len(xy)}
+        if used is None:
+            used = {d for d, _ in sol.matches}
         rest = np.array([i for i in range(len(xy)) if i not in used], dtype=np.int64)
         # the camera the fix fitted; the first patterns of the rest (its brightest): stars
         # left over in numbers are found there, and a rest of noise costs little

@@ -150,9 +150,9 @@ def _build(index: PatternIndex, cell_rad: float) -> dict[str, np.ndarray]:
 
 def triangle_table(index: PatternIndex, cell_rad: float,
                    cache_tag: str | None = None) -> dict[str, np.ndarray]:
-    """The triangles of ``index`` (``tri`` (T, 3) star rows, ``offs`` the cells' first
-    rows, ``cell_rad``, ``n_cells``; each row the stars i < j < k and the quanta of its
-    sorted sides, :data:`QUANTA`), built or — with ``cache_tag`` naming the catalogue,
+    """The triangles of ``index`` (``tri`` (T, 4): each row the stars i < j < k and the
+    quanta of its sorted sides, :data:`QUANTA`; ``offs`` the cells' first rows,
+    ``cell_rad``, ``n_cells``), built or — with ``cache_tag`` naming the catalogue,
     as for the index — loaded from the cache."""
     if cache_tag is None:
         return _build(index, cell_rad)
