@@ -34,6 +34,7 @@ import math
 
 import numpy as np
 from adfusion.starid.kernels import (
+    NOTE_NONE,
     STRONG,
     _jit,
     _matrix_of,
@@ -46,16 +47,21 @@ from adfusion.starid.kernels import (
     triangle_store,
     verify_candidate,
 )
+from numba.core import types
+from numba.experimental import structref
 from numpy.typing import NDArray
 
-__all__ = ["ACCEPTED", "NONE", "PACKED_HEADER", "SEVERAL", "input_problem", "solve_frame",
-           "solve_frame_packed", "unpack", "verify_weak"]
+__all__ = ["ACCEPTED", "LEAN_WALK", "NONE", "NO_ROOM", "PACKED_HEADER", "REFUSED", "SEVERAL",
+           "LeanState", "input_problem", "lean_state", "solve_frame", "solve_frame_packed",
+           "solve_lean", "unpack", "verify_weak"]
 
-# solve_frame() outcome
+# solve_frame() outcome; solve_lean()'s own: the input check refused the detections, or
+# the work arrays it was given are too small for the solver
 NONE, ACCEPTED, SEVERAL = 0, 1, 2
+REFUSED, NO_ROOM = -1, -2
 # the cone the refit draws its stars from is this much wider than the view (rad), where the
 # anchor's neighbour row reaches so far; a refit moves the attitude by arcseconds
-_CONE_SPARE_RAD = math.radians(2.0)
+_CONE_SPARE_RAD = math.radians(0.25)
 _CONE_SPARE_MIN_RAD = 1e-4
 
 
@@ -262,8 +268,9 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
 
 
 #: the header of :func:`solve_frame_packed`'s integers: outcome, counter, n_acc, candidates,
-#: pattern stars, refit status, pairs rejected, refit pairs, weak rows
-PACKED_HEADER = 9
+#: pattern stars, refit status, pairs rejected, refit pairs, weak rows, the walk's pattern
+#: and trials (its state's 0 and 2)
+PACKED_HEADER = 11
 _NO_FLOATS, _NO_ROWS = np.zeros(0), np.zeros((0, 20), dtype=np.int64)
 _NO_FLOATS.flags.writeable = _NO_ROWS.flags.writeable = False
 
@@ -278,7 +285,8 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     to hand to Python, more than the Python that reads them (:func:`unpack` reads these).
 
     Integers: the header (:data:`PACKED_HEADER`: outcome, counter, n_acc, candidates C,
-    pattern stars, refit status, pairs rejected, refit pairs m, weak rows W), sel, order,
+    pattern stars, refit status, pairs rejected, refit pairs m, weak rows W, pattern,
+    trials), sel, order,
     each candidate's pair count, then per candidate its detections and ids, the refit's
     detections and ids, the weak rows (W × 20). Floats: each candidate's p_false and the
     refit's σ (px); per candidate q (4), covariance (9), residuals; the refit's q,
@@ -299,6 +307,7 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     floats = np.empty(n_c + 1 + 13 * n_c + pairs + 13 + m + n_w)
     ints[0], ints[1], ints[2], ints[3], ints[4] = outcome, counter, n_acc, n_c, len(sel)
     ints[5], ints[6], ints[7], ints[8] = status, rejected, m, n_w
+    ints[9], ints[10] = state[0], state[2]
     o = PACKED_HEADER
     for i in range(len(sel)):
         ints[o + i] = sel[i]
@@ -341,19 +350,21 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
 
 def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
     """:func:`solve_frame_packed`'s arrays read back: (outcome, sel, counter, n_acc, order,
-    candidates, refit, weak) with candidates a list of (detections, ids, q, covariance,
-    residuals, p_false) — detections and ids as lists — refit (status, detections, ids, q,
-    covariance, residuals, σ px, rejected; only the status and rejected count unless the
-    status is 1) and weak (p_false (W,), rows (W, 20)); the arrays are views of ``floats``
-    and ``ints`` (with no weak rows: shared empty arrays, not to be written to).
+    candidates, refit, weak, pattern, trials) with candidates a list of (detections, ids,
+    q, covariance, residuals, p_false) — detections and ids as lists — refit (status,
+    detections, ids, q, covariance, residuals, σ px, rejected; only the status and
+    rejected count unless the status is 1) and weak (p_false (W,), rows (W, 20)); the
+    arrays are views of ``floats`` and ``ints`` (with no weak rows: shared empty arrays,
+    not to be written to). ``pattern`` and ``trials``: the walk's state 0 and 2.
 
     >>> import numpy as np
-    >>> ints = np.array([0, 0, 0, 0, 3, -2, 0, 0, 0, 4, 1, 2])
+    >>> ints = np.array([0, 0, 0, 0, 3, -2, 0, 0, 0, 5, 9, 4, 1, 2])
     >>> unpack(ints, np.zeros(14))[:3]
     (0, [4, 1, 2], 0)
     """
     every = ints.tolist()  # one call: cheaper than slicing the array piece by piece
-    outcome, counter, n_acc, n_c, n_sel, status, rejected, m, n_w = every[:PACKED_HEADER]
+    outcome, counter, n_acc, n_c, n_sel, status, rejected, m, n_w, pattern, tried = \
+        every[:PACKED_HEADER]
     o = PACKED_HEADER
     sel = every[o:o + n_sel]
     o += n_sel
@@ -381,7 +392,7 @@ def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
         weak = (floats[f:f + n_w], ints[len(ints) - 20 * n_w:].reshape(n_w, 20))
     else:
         weak = (_NO_FLOATS, _NO_ROWS)
-    return outcome, sel, counter, n_acc, order, cands, refit, weak
+    return outcome, sel, counter, n_acc, order, cands, refit, weak, pattern, tried
 
 
 @_jit
@@ -489,3 +500,82 @@ def input_problem(xy, n_use, width, height, slack):
                     if i != j and dx * dx + dy * dy < 1e-12:
                         return 3, i, j
     return 0, 0, 0
+
+
+# --- one solver's constant arguments, held once (solve_lean) ---------------------------
+
+
+@structref.register
+class _LeanStateType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(typ)) for name, typ in fields)
+
+
+class LeanState(structref.StructRefProxy):
+    """A solver's constant arguments of :func:`solve_frame_packed` — catalogue ids, index
+    arrays, camera, tolerances, every detection count's pattern list — held in one
+    compiled object (:func:`lean_state` makes it), so that :func:`solve_lean` takes four
+    arguments instead of 27: handing numba the 27, one of them a tuple of 18 arrays, cost
+    ~8 µs of a ~90 µs frame (docs/concepts/identification.md, "One compiled call")."""
+
+
+_LEAN_FIELDS = ("ids", "ix", "M", "off", "A", "c", "width", "height", "view_half", "pix",
+                "slack", "tolerance_rad", "max_det", "pats", "plen", "pat_start", "budget",
+                "max_partials", "no_match_len", "work_len", "r_min_px", "sigma0_px",
+                "p_false_max", "distinct_rad", "consts")
+structref.define_proxy(LeanState, _LeanStateType, list(_LEAN_FIELDS))
+
+#: :func:`solve_lean`'s walk array: the search's state (8), the no-match sets' count (1),
+#: then the no-match sets (``no_match_len``)
+LEAN_WALK = 9
+
+
+@_jit
+def lean_state(ids, ix, M, off, A, c, width, height, view_half, pix, slack, tolerance_rad,
+               max_det, pats, plen, pat_start, budget, max_partials, no_match_len,
+               work_len, r_min_px, sigma0_px, p_false_max, distinct_rad, consts):
+    """A :class:`LeanState` of these values (:func:`solve_frame_packed`'s arguments, plus
+    the input check's ``slack``, ``max_det`` detections used at most, the patterns of
+    every count n at rows ``pat_start[n]:pat_start[n + 1]`` of ``pats`` and ``plen``, and
+    the lengths :func:`solve_lean`'s work arrays need). Compiled and cached here: the
+    class's own constructor compiles in every process (~0.3 s)."""
+    return LeanState(ids, ix, M, off, A, c, width, height, view_half, pix, slack,
+                     tolerance_rad, max_det, pats, plen, pat_start, budget, max_partials,
+                     no_match_len, work_len, r_min_px, sigma0_px, p_false_max,
+                     distinct_rad, consts)
+
+
+@_jit
+def _lean_flag(code):
+    ints = np.zeros(PACKED_HEADER, dtype=np.int64)
+    ints[0] = code
+    return ints, np.zeros(0)
+
+
+@_jit
+def solve_lean(st, xy, work, walk):
+    """``Solver.solve(xy)`` without a prior for a solver's :class:`LeanState` ``st``: the
+    input check (:func:`input_problem`) and :func:`solve_frame_packed` on the first
+    ``max_det`` detections, refitted on all of them, in one call. ``work`` is the search's
+    scratch (all −1, at least ``work_len`` long), ``walk`` (at least :data:`LEAN_WALK` +
+    ``no_match_len`` long) receives the walk's state, no-match count and sets, for a caller
+    that continues it. Returns :func:`solve_frame_packed`'s arrays, or a header alone whose
+    outcome is :data:`REFUSED` (fewer than 3 detections or the check refused them: the
+    caller's general path says why) or :data:`NO_ROOM` (arrays too small)."""
+    n = min(xy.shape[0], st.max_det)
+    if len(work) < st.work_len or len(walk) < LEAN_WALK + st.no_match_len:
+        return _lean_flag(NO_ROOM)
+    if n < 3 or input_problem(xy, n, st.width, st.height, st.slack)[0] != 0:
+        return _lean_flag(REFUSED)
+    state = walk[:8]
+    state[:] = 0
+    state[3], state[5] = -1, NOTE_NONE
+    walk[8] = 0
+    walk[LEAN_WALK:LEAN_WALK + st.no_match_len] = 0
+    no_match = walk[LEAN_WALK:LEAN_WALK + st.no_match_len].reshape((1, st.no_match_len))
+    lo, hi = st.pat_start[n], st.pat_start[n + 1]
+    return solve_frame_packed(
+        st.ids, st.ix, xy[:n], xy, st.M, st.off, st.A, st.c, st.width, st.height,
+        st.view_half, st.pix, st.tolerance_rad, state, st.pats[lo:hi], st.plen[lo:hi],
+        st.budget, no_match, walk[8:9], st.max_partials, work, st.r_min_px, st.sigma0_px,
+        st.p_false_max, st.distinct_rad, True, st.consts)

@@ -24,7 +24,7 @@ from adfusion.starid.camera import Camera
 from adfusion.starid.nstar import Pattern, WorkBudgetExceeded, chirality_of, closest_pair_first
 from adfusion.starid.refine import _PRIOR_DOF, _RADIUS_MAX_FACTOR, _RADIUS_SIGMA, _REJECT_SIGMA
 from adfusion.starid.search_order import combination_order
-from adfusion.starid.solution import Candidate, Solution
+from adfusion.starid.solution import Candidate, Solution, made
 from adfusion.starid.triangle_index import triangles_for
 from adfusion.starid.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
@@ -49,6 +49,13 @@ _FLOAT64 = np.dtype(np.float64)  # (an identity test: cheaper than comparing dty
 REST_CHECK_SHARE = 0.5
 # kernels.search's state at a frame's first trial (copied: cheaper than building it)
 _STATE0 = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
+# the lean path: a thread's work arrays before its first call (too small: the kernel asks
+# for them), where the no-match sets start in its walk array, empty pattern lists (fewer
+# than 3 detections), and the attributes a solve caches (they keep its state)
+_NO_LEAN = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+_LEAN_SETS = frame_kernels.LEAN_WALK
+_NO_PATS, _NO_COUNTS = np.zeros((0, 8), dtype=np.int64), np.zeros(0, dtype=np.int64)
+_LEAN_KEEPS = frozenset({"_lean", "_frame_camera_kept", "_cone_cache", "_triangles_done"})
 
 #: the best candidate wins over the others when its p_false is this many times smaller
 EVIDENCE_RATIO = 1e6
@@ -295,54 +302,62 @@ class LostInSpace:
     def _solve_lean(self, arr: NDArray[np.float64], t0: float) -> Solution | None:
         """``solve(arr)`` without a prior, for the common case — detections an (N, 2)
         C-contiguous float64 array, the n-star method, a known ideal pinhole refitted in
-        the kernel — with a few Python steps instead of the general path's layers (about
-        a third of a clean frame's time was Python around the kernel): the same
+        the kernel — as one compiled call (:func:`starid.frame_kernels.solve_lean`, the
+        input check included) on the solver's :meth:`_lean_state`, and a few Python steps
+        (about a third of a clean frame's time was Python around the kernel): the same
         solution, or None (the general path takes over) for input the check refuses or
-        any other set-up. A frame whose first call ends otherwise than in one refitted
-        attitude continues in :meth:`_frame_solution` from that call's result."""
-        lean, cam = self._lean, self.camera
-        if lean is None or lean[0] is not cam:
-            lean = self._lean = self._lean_camera(cam)
-        # the settings are read on every call: a solver's may change after its first solve
-        if not (lean[1] is not None and self.method == "nstar" and self._compiled
-                and self._frame_kernel and self._compiled_verify and self._compiled_refine
-                and not self._fov_uncertain and self._fit_terms() is None) \
-                or arr.dtype is not _FLOAT64 or arr.ndim != 2 or arr.shape[1] != 2 \
-                or not arr.flags.c_contiguous or len(arr) < 3:
+        any other set-up. A frame whose call ends otherwise than in one refitted attitude
+        continues in :meth:`_frame_solution` from that call's result."""
+        lean = self.__dict__.get("_lean")
+        if lean is None:
+            lean = self._lean = self._lean_state()
+        if lean is False or arr.dtype is not _FLOAT64 or arr.ndim != 2 or arr.shape[1] != 2 \
+                or not arr.flags.c_contiguous:
             return None
-        size = lean[1]
+        st, paths = lean
+        work, walk = getattr(_SCRATCH, "lean", _NO_LEAN)
+        try:
+            read = frame_kernels.unpack(*frame_kernels.solve_lean(st, arr, work, walk))
+            if read[0] == frame_kernels.NO_ROOM:  # this thread's first lean call
+                work, walk = _SCRATCH.lean = (self._scratch(), np.zeros(
+                    frame_kernels.LEAN_WALK + self.max_patterns + 2, dtype=np.int64))
+                read = frame_kernels.unpack(*frame_kernels.solve_lean(st, arr, work, walk))
+        except BaseException:
+            self._drop_scratch()
+            raise
+        outcome, sel, counter, _, order, cands, refit, _, pattern, tried = read
+        if outcome == frame_kernels.REFUSED:
+            return None  # the general path says what is wrong
         n_all = len(arr)
         n = min(n_all, self.max_detections)
-        if frame_kernels.input_problem(arr, n, *size)[0]:
-            return None  # the general path says what is wrong
-        xy = arr[:n]
-        pats, plen, paths = self._pattern_list(n, False)
-        walk = self._fresh_walk()
-        ints, floats = self._frame_call(xy, arr, cam, walk, pats, plen,
-                                        self._trial_budget(1), self.work_budget, True)
-        if ints[0] == frame_kernels.ACCEPTED and ints[5] == 1:  # one attitude, refitted
-            _, sel, counter, _, order, cands, refit, _ = frame_kernels.unpack(ints, floats)
+        cam = self.camera
+        if outcome == frame_kernels.ACCEPTED and refit[0] == 1:  # one attitude, refitted
             found = [self._candidate(*c, len(sel), cam) for c in cands]
-            state = walk[0]
-            sol = self._refitted(refit, counter, found[order[0]], paths[state[0]], found, cam,
+            sol = self._refitted(refit, counter, found[order[0]],
+                                 paths[n][pattern], found, cam,
                                  {"time_s": time.perf_counter() - t0, "n_detections": n,
-                                  "patterns_tried": int(state[2])})
+                                  "patterns_tried": tried})
             if n_all == n and not self._rest_wanted(len(refit[1]), n):
                 return sol  # what _rest_checked decides of it, without the call
         else:
-            sol, tried, filled = self._frame_solution(xy, cam, arr, None, None, t0,
-                                                      first=(walk, ints, floats))
+            # the walk continues from the call's state (copied: the array is the thread's)
+            cols = self.max_patterns + 2
+            first = ((walk[:8].copy(), walk[_LEAN_SETS:_LEAN_SETS + cols].reshape(1, cols).copy(),
+                      walk[8:9].copy()), read)
+            sol, tried, filled = self._frame_solution(arr[:n], cam, arr, None, None, t0,
+                                                      first=first)
             if not filled:
                 sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=n,
                               patterns_tried=tried)
-        return self._rest_checked(sol, arr, xy, t0)
+        return self._rest_checked(sol, arr, arr[:n], t0)
 
     def _candidate(self, det: list[int], ids: list[int], q: NDArray, cov: NDArray,
                    res: NDArray, p_false: float, n_pattern: int, cam: Camera) -> Candidate:
         """A verified candidate of the compiled path: pairs detection → catalogue id."""
-        return Candidate(q_cam_icrs=q, matches=list(zip(det, ids, strict=True)),
-                         residuals_rad=res, p_false=p_false, n_pattern=n_pattern,
-                         camera=cam, covariance=cov, _projector=self._project)
+        return made(Candidate, {
+            "q_cam_icrs": q, "matches": list(zip(det, ids, strict=True)),
+            "residuals_rad": res, "p_false": p_false, "n_pattern": n_pattern, "camera": cam,
+            "covariance": cov, "_projector": self._project})
 
     @staticmethod
     def _refitted(refit: tuple, counter: int, best: Candidate, path: str,
@@ -351,12 +366,15 @@ class LostInSpace:
         :func:`starid.frame_kernels.unpack`'s, status 1), with ``done``'s fields (time,
         detections, trials) when they are known."""
         _, d, h, rq, rcov, rres, sigma_px, rejected = refit
-        return Solution(
-            True, "", q_cam_icrs=rq, matches=list(zip(d, h, strict=True)),
-            matching_counter=counter, covariance=rcov, p_false=best.p_false, path=path,
-            candidates=found, residuals_rad=rres, camera=cam, sigma_px=sigma_px,
-            note=f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-            **done)
+        return made(Solution, {
+            "ok": True, "reason": "", "q_cam_icrs": rq, "matches": list(zip(d, h, strict=True)),
+            "matching_counter": counter, "covariance": rcov, "mode": "lost-in-space",
+            "time_s": done.get("time_s", 0.0), "p_false": best.p_false, "path": path,
+            "candidates": found, "residuals_rad": rres, "camera": cam,
+            "n_detections": done.get("n_detections", 0),
+            "patterns_tried": done.get("patterns_tried", 0), "sigma_px": sigma_px,
+            "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+            "n_predicted": 0})
 
     def _rest_wanted(self, n_used: int, n: int) -> bool:
         """Whether a fix that explains ``n_used`` of the ``n`` detections the search used
@@ -364,15 +382,38 @@ class LostInSpace:
         :data:`REST_CHECK_SHARE` of them, and enough left over for a pattern."""
         return n_used < REST_CHECK_SHARE * n and n - n_used >= max(self.n_min, 3)
 
-    _lean: tuple | None = None  # _lean_camera's answer for the solver's camera
+    def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]]] | bool:
+        """:meth:`_solve_lean`'s compiled state of this solver's settings, index and camera
+        (:func:`starid.frame_kernels.lean_state`) and the paths of every detection count's
+        patterns (Renken's, :meth:`_pattern_list`), or False where the lean path does not
+        apply (another method, the numpy matchers, a camera that is no ideal pinhole or is
+        fitted, a focal range). Made on the first call and dropped by any assignment to the
+        solver (:meth:`__setattr__`): every setting a solve reads is one of its
+        attributes."""
+        cam = self.camera
+        if not (cam._ideal_pinhole is not None and self.method == "nstar" and self._compiled
+                and self._frame_kernel and self._compiled_verify and self._compiled_refine
+                and not self._fov_uncertain and self._fit_terms() is None):
+            return False
+        lists = [self._pattern_list(n, False) if n >= 3 else (_NO_PATS, _NO_COUNTS, [])
+                 for n in range(self.max_detections + 1)]
+        start = np.cumsum([0] + [len(c) for _, c, _ in lists], dtype=np.int64)
+        st = frame_kernels.lean_state(
+            self.ids, self._ix, *self._frame_camera(cam), 0.5 * max(cam.width, cam.height),
+            self.tolerance_rad, self.max_detections,
+            np.ascontiguousarray(np.concatenate([p for p, _, _ in lists])),
+            np.concatenate([c for _, c, _ in lists]), start, self._trial_budget(1),
+            self.work_budget, self.max_patterns + 2, 2 * len(self._ix[0]),
+            self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
+            3 * self.tolerance_rad, _REFIT_CONSTANTS)
+        return st, [paths for _, _, paths in lists]
 
-    @staticmethod
-    def _lean_camera(cam: Camera) -> tuple:
-        """What :meth:`_solve_lean` keeps of the camera: (the camera, the input check's
-        frame size and slack — None for a camera that is no ideal pinhole)."""
-        size = ((float(cam.width), float(cam.height), 0.5 * max(cam.width, cam.height))
-                if cam._ideal_pinhole is not None else None)
-        return cam, size
+    def __setattr__(self, name: str, value) -> None:
+        # any setting, the index (the triangles joining it) or the camera changed: the
+        # lean path's state is made again on its next call; the solve's own caches leave it
+        if name not in _LEAN_KEEPS:
+            self.__dict__.pop("_lean", None)
+        object.__setattr__(self, name, value)
 
     def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
@@ -438,7 +479,7 @@ class LostInSpace:
     def _drop_scratch() -> None:
         """Forget this thread's work array: a kernel stopped by an exception may have left
         marks in it."""
-        _SCRATCH.work = None
+        _SCRATCH.work, _SCRATCH.lean = None, _NO_LEAN
 
     def _frame_path(self, cams: list[Camera]) -> bool:
         """Whether a search at ``cams`` runs as one compiled call
@@ -492,7 +533,8 @@ class LostInSpace:
         """The work of :meth:`_solve_frame`: (solution, trials, whether the solution has its
         time, detections and trials filled in — the common outcome, one attitude refitted
         in the kernel, has when ``t0`` is given). ``first``: the walk and the result of
-        the first call, already made (:meth:`_solve_lean`)."""
+        the first call, already made, read by :func:`starid.frame_kernels.unpack`
+        (:meth:`_solve_lean`)."""
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
         walk = self._fresh_walk() if first is None else first[0]
@@ -508,12 +550,11 @@ class LostInSpace:
         weak_rows = []
         while True:
             if first is None:
-                ints, floats = self._frame_call(xy, refit_xy, cam, walk, pats, plen, budget,
-                                                work, refine)
+                read = frame_kernels.unpack(*self._frame_call(
+                    xy, refit_xy, cam, walk, pats, plen, budget, work, refine))
             else:
-                (_, ints, floats), first = first, None
-            outcome, sel, counter, n_acc, order, cands, refit, (wp, wi) = \
-                frame_kernels.unpack(ints, floats)
+                (_, read), first = first, None
+            outcome, sel, counter, n_acc, order, cands, refit, (wp, wi), _, _ = read
             if len(wp):
                 weak_rows.append((wp, wi, paths))
             if outcome != frame_kernels.NONE or full or state[0] < len(pats):

@@ -452,6 +452,9 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             for n_det in range(3, self.max_detections + 1):  # every count's patterns (~0.1 s)
                 self._pattern_list(n_det, False)  # Renken's, searched first
                 self._pattern_list(n_det, True)
+            # the lean path's state and kernel (solve on an array), on input its check
+            # refuses: compiled or loaded whatever the camera, no search run
+            self._solve_lean(np.full((3, 2), np.nan), 0.0)
         else:
             solved = self.solve(pxy[:8]).ok
         self._parse(np.ascontiguousarray(pxy[:8]))  # its input check (compiled)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from adfusion.starid import kernels
+from adfusion.starid import frame_kernels, kernels
 from test_solver import sky_frame
 
 from adfusion import starid
@@ -207,11 +207,11 @@ def test_the_packed_result_reads_back_as_the_kernels_own(cat, monkeypatch):
         if k == 0:  # noise
             xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (9, 2))
         calls.clear()
-        solver.solve(xy)
+        solver.solve(xy.tolist())  # the general path (the lean one calls it compiled)
         for a in calls:
             ids, args = a[0], a[1:]
             fresh = [x.copy() if i in (12, 16, 17) else x for i, x in enumerate(args)]
-            outcome, sel, counter, n_acc, order, cands, refit, (wp, wi) = fk.unpack(
+            outcome, sel, counter, n_acc, order, cands, refit, (wp, wi), _, _ = fk.unpack(
                 *real(ids, *fresh))
             fresh = [x.copy() if i in (12, 16, 17) else x for i, x in enumerate(args)]
             o2, sel2, c2, cands2, order2, n_acc2, refit2, (wp2, wi2) = fk.solve_frame(*fresh)
@@ -377,8 +377,62 @@ def test_the_lean_path_solves_every_frame_as_the_general_path_does(cat):
         if a.ok and len(xy) > solver.max_detections:
             outcomes.add("beyond the search's detections")
     assert {"ok", "ambiguous", "bad input", "beyond the search's detections"} <= outcomes
-    assert isinstance(solver._lean, tuple)  # the lean path ran
+    assert isinstance(solver._lean[0], frame_kernels.LeanState)  # the lean path ran
     assert any(calls)  # and some frames continued from its first call
+
+
+def test_the_lean_state_is_made_once_and_each_thread_gets_its_own_work_arrays(cat):
+    """The lean path's compiled state is made on the first solve and kept by every later
+    one (a solve that dropped it would make it again each frame, ~1 ms); an assignment to
+    the solver drops it. A thread's first lean call, and a solver whose walk needs more
+    room than the thread's arrays give, get arrays of the right size: the same results
+    as the general path."""
+    import threading
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    rng = np.random.default_rng(21)
+    frames = [np.ascontiguousarray(sky_frame(cat, cam, rng, n_false=k % 4)[0])
+              for k in range(8)]
+    frames.append(rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (10, 2)))
+    solver.warm_up()  # the triangles join the index (a new index: a new state)
+    solver.solve(frames[0])
+    state = solver._lean
+    for xy in frames:
+        _same(solver.solve(xy), solver.solve(xy.tolist()))
+    assert solver._lean is state
+    out = []
+    worker = threading.Thread(target=lambda: out.append(solver.solve(frames[1])))
+    worker.start()
+    worker.join()
+    _same(out[0], solver.solve(frames[1].tolist()))
+    wide = starid.Solver(cat, cam, max_patterns=4 * solver.max_patterns)
+    for xy in frames[-3:]:
+        _same(wide.solve(xy), wide.solve(xy.tolist()))
+    solver.n_min = solver.n_min  # any assignment
+    assert "_lean" not in vars(solver)
+
+
+def test_the_compiled_paths_solutions_are_made_as_their_classes_make_them(cat):
+    """The compiled path builds its Solution and Candidates without their __init__
+    (solution.made): every field present, each the object __init__ would keep."""
+    import dataclasses
+
+    from adfusion.starid.solution import Candidate, Solution
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    xy, _ = sky_frame(cat, cam, np.random.default_rng(3), n_false=2)
+    sol = solver.solve(np.ascontiguousarray(xy))
+    assert sol.ok and sol.candidates
+    for obj, cls in [(sol, Solution)] + [(c, Candidate) for c in sol.candidates]:
+        names = [f.name for f in dataclasses.fields(cls)]
+        assert sorted(vars(obj)) == sorted(names)
+        again = dataclasses.replace(obj)  # through __init__
+        assert all(getattr(again, n) is getattr(obj, n) for n in names)
+        with pytest.raises(dataclasses.FrozenInstanceError):
+            obj.p_false = 0.0
+    assert sol.candidates[0].predicted_xy.shape[1] == 2  # the cached property still works
 
 
 def test_the_lean_path_follows_settings_changed_after_the_first_solve(cat):
