@@ -15,7 +15,7 @@ import itertools
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -96,6 +96,46 @@ def resolve_by_evidence(cands: list[Candidate]) -> tuple[Candidate | None, str]:
             return None, ""
     return best, (f"best of {len(cands)} candidates: the others weaker by the evidence "
                   f"({'; '.join(reasons)})")
+
+
+def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
+              project: Callable, paths: list[str], n: int, t0: float) -> Solution:
+    """The :class:`Solution` of a frame whose compiled call accepted one attitude and
+    refitted it, read straight from :func:`starid.frame_kernels.solve_frame_packed`'s
+    arrays (``every``: the integers as a list) — what :func:`starid.frame_kernels.unpack`,
+    :meth:`LostInSpace._candidate` and :meth:`LostInSpace._refitted` make of them, without
+    their intermediate tuples and calls: ~5 µs of a ~75 µs frame in cold caches
+    (docs/benchmarks.md, "One call, four arguments"). ``paths``: the path of each of the
+    frame's patterns."""
+    counter, n_acc, n_c, n_sel, _, rejected, m, _, pattern, tried = \
+        every[1:frame_kernels.PACKED_HEADER]
+    o = frame_kernels.PACKED_HEADER + n_sel
+    best = every[o]
+    o += n_acc
+    counts = every[o:o + n_c]
+    o += n_c
+    scalars = floats[:n_c + 1].tolist()
+    f = n_c + 1
+    found = []
+    for i, k in enumerate(counts):
+        found.append(made(Candidate, {
+            "q_cam_icrs": floats[f:f + 4],
+            "matches": list(zip(every[o:o + k], every[o + k:o + 2 * k], strict=True)),
+            "residuals_rad": floats[f + 13:f + 13 + k], "p_false": scalars[i],
+            "n_pattern": n_sel, "camera": cam,
+            "covariance": floats[f + 4:f + 13].reshape(3, 3), "_projector": project}))
+        o += 2 * k
+        f += 13 + k
+    return made(Solution, {
+        "ok": True, "reason": "", "q_cam_icrs": floats[f:f + 4],
+        "matches": list(zip(every[o:o + m], every[o + m:o + 2 * m], strict=True)),
+        "matching_counter": counter, "covariance": floats[f + 4:f + 13].reshape(3, 3),
+        "mode": "lost-in-space", "time_s": time.perf_counter() - t0,
+        "p_false": found[best].p_false, "path": paths[pattern], "candidates": found,
+        "residuals_rad": floats[f + 13:f + 13 + m], "camera": cam, "n_detections": n,
+        "patterns_tried": tried, "sigma_px": scalars[n_c],
+        "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+        "n_predicted": 0})
 
 
 class LostInSpace:
@@ -317,33 +357,31 @@ class LostInSpace:
         st, paths = lean
         work, walk = getattr(_SCRATCH, "lean", _NO_LEAN)
         try:
-            read = frame_kernels.unpack(*frame_kernels.solve_lean(st, arr, work, walk))
-            if read[0] == frame_kernels.NO_ROOM:  # this thread's first lean call
+            ints, floats = frame_kernels.solve_lean(st, arr, work, walk)
+            # a header alone: refused, or this thread's first lean call (NO_ROOM)
+            if len(ints) == frame_kernels.PACKED_HEADER and ints[0] == frame_kernels.NO_ROOM:
                 work, walk = _SCRATCH.lean = (self._scratch(), np.zeros(
                     frame_kernels.LEAN_WALK + self.max_patterns + 2, dtype=np.int64))
-                read = frame_kernels.unpack(*frame_kernels.solve_lean(st, arr, work, walk))
+                ints, floats = frame_kernels.solve_lean(st, arr, work, walk)
         except BaseException:
             self._drop_scratch()
             raise
-        outcome, sel, counter, _, order, cands, refit, _, pattern, tried = read
+        every = ints.tolist()
+        outcome = every[0]
         if outcome == frame_kernels.REFUSED:
             return None  # the general path says what is wrong
         n_all = len(arr)
         n = min(n_all, self.max_detections)
         cam = self.camera
-        if outcome == frame_kernels.ACCEPTED and refit[0] == 1:  # one attitude, refitted
-            found = [self._candidate(*c, len(sel), cam) for c in cands]
-            sol = self._refitted(refit, counter, found[order[0]],
-                                 paths[n][pattern], found, cam,
-                                 {"time_s": time.perf_counter() - t0, "n_detections": n,
-                                  "patterns_tried": tried})
-            if n_all == n and not self._rest_wanted(len(refit[1]), n):
+        if outcome == frame_kernels.ACCEPTED and every[5] == 1:  # one attitude, refitted
+            sol = _accepted(every, floats, cam, self._project, paths[n], n, t0)
+            if n_all == n and not self._rest_wanted(every[7], n):
                 return sol  # what _rest_checked decides of it, without the call
         else:
             # the walk continues from the call's state (copied: the array is the thread's)
             cols = self.max_patterns + 2
             first = ((walk[:8].copy(), walk[_LEAN_SETS:_LEAN_SETS + cols].reshape(1, cols).copy(),
-                      walk[8:9].copy()), read)
+                      walk[8:9].copy()), frame_kernels.unpack(ints, floats))
             sol, tried, filled = self._frame_solution(arr[:n], cam, arr, None, None, t0,
                                                       first=first)
             if not filled:
