@@ -196,6 +196,15 @@ class Camera:
         c = self.corners()
         return max(self._edge_angle_deg(c[[0, 2]]), self._edge_angle_deg(c[[1, 3]]))
 
+    @cached_property
+    def _view_half_rad(self) -> float:
+        """The largest angle between the optical axis and a point of the frame (a corner):
+        half of :attr:`diagonal_fov_deg` when the principal point is the frame's centre,
+        more when it is not — the cone that holds every star in view."""
+        v = self.pixels_to_vectors(self.corners())
+        far = np.arccos(np.clip(v[:, 2] / np.linalg.norm(v, axis=1), -1.0, 1.0))
+        return max(0.5 * float(np.radians(self.diagonal_fov_deg)), float(far.max()))
+
     @property
     def pixel_scale_rad(self) -> float:
         """Angle subtended by one pixel at the principal point (mean of x and y)."""

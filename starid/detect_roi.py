@@ -376,7 +376,7 @@ class TrackingWindows:
         self._mag = np.asarray(solver.catalog.mag, dtype=np.float64)
         self.min_found_fraction = float(min_found_fraction)
         cam = self.camera
-        self._half_diag = math.radians(cam.diagonal_fov_deg) / 2
+        self._half_diag = cam._view_half_rad  # the farthest corner from the axis
         self._cone_margin = math.radians(1.0)
         self._cone_axis: np.ndarray | None = None
         self._cone: np.ndarray = np.zeros(0, np.int64)

@@ -12,7 +12,6 @@ Example:
 from __future__ import annotations
 
 import itertools
-import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -350,11 +349,14 @@ class LostInSpace:
         continues in :meth:`_frame_solution` from that call's result."""
         lean = self.__dict__.get("_lean")
         if lean is None:
-            lean = self._lean = self._lean_state()
+            changes = self.__dict__.get("_lean_changes", 0)
+            lean = self._lean_state()
+            if self.__dict__.get("_lean_changes", 0) == changes:  # (see __setattr__)
+                self.__dict__["_lean"] = lean
         if lean is False or arr.dtype is not _FLOAT64 or arr.ndim != 2 or arr.shape[1] != 2 \
                 or not arr.flags.c_contiguous:
             return None
-        st, paths = lean
+        st, paths, cols = lean
         work, walk = getattr(_SCRATCH, "lean", _NO_LEAN)
         try:
             ints, floats = frame_kernels.solve_lean(st, arr, work, walk)
@@ -379,7 +381,6 @@ class LostInSpace:
                 return sol  # what _rest_checked decides of it, without the call
         else:
             # the walk continues from the call's state (copied: the array is the thread's)
-            cols = self.max_patterns + 2
             first = ((walk[:8].copy(), walk[_LEAN_SETS:_LEAN_SETS + cols].reshape(1, cols).copy(),
                       walk[8:9].copy()), frame_kernels.unpack(ints, floats))
             sol, tried, filled = self._frame_solution(arr[:n], cam, arr, None, None, t0,
@@ -420,10 +421,11 @@ class LostInSpace:
         :data:`REST_CHECK_SHARE` of them, and enough left over for a pattern."""
         return n_used < REST_CHECK_SHARE * n and n - n_used >= max(self.n_min, 3)
 
-    def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]]] | bool:
+    def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]], int] | bool:
         """:meth:`_solve_lean`'s compiled state of this solver's settings, index and camera
-        (:func:`starid.frame_kernels.lean_state`) and the paths of every detection count's
-        patterns (Renken's, :meth:`_pattern_list`), or False where the lean path does not
+        (:func:`starid.frame_kernels.lean_state`), the paths of every detection count's
+        patterns (Renken's, :meth:`_pattern_list`) and the length of the walk's no-match
+        sets, or False where the lean path does not
         apply (another method, the numpy matchers, a camera that is no ideal pinhole or is
         fitted, a focal range). Made on the first call and dropped by any assignment to the
         solver (:meth:`__setattr__`): every setting a solve reads is one of its
@@ -444,14 +446,33 @@ class LostInSpace:
             self.work_budget, self.max_patterns + 2, 2 * len(self._ix[0]),
             self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
             3 * self.tolerance_rad, _REFIT_CONSTANTS)
-        return st, [paths for _, _, paths in lists]
+        return st, [paths for _, _, paths in lists], self.max_patterns + 2
 
     def __setattr__(self, name: str, value) -> None:
-        # any setting, the index (the triangles joining it) or the camera changed: the
-        # lean path's state is made again on its next call; the solve's own caches leave it
-        if name not in _LEAN_KEEPS:
-            self.__dict__.pop("_lean", None)
+        # a setting, the index (the triangles joining it) or the camera changed: the lean
+        # path's state is made again on its next call (the solve's own caches keep it).
+        # The count goes up first and the state goes last, so a state another thread is
+        # making meanwhile from the old value is not kept (_solve_lean compares counts)
+        if name in _LEAN_KEEPS:
+            object.__setattr__(self, name, value)
+            return
+        d = self.__dict__
+        d["_lean_changes"] = d.get("_lean_changes", 0) + 1
         object.__setattr__(self, name, value)
+        d.pop("_lean", None)
+
+    def __delattr__(self, name: str) -> None:
+        d = self.__dict__
+        d["_lean_changes"] = d.get("_lean_changes", 0) + 1
+        object.__delattr__(self, name)
+        d.pop("_lean", None)
+
+    def __getstate__(self) -> dict:
+        # a pickled or copied solver makes its compiled state again where it is used (a
+        # numba structure can be neither pickled nor copied)
+        state = self.__dict__.copy()
+        state.pop("_lean", None)
+        return state
 
     def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
@@ -470,14 +491,15 @@ class LostInSpace:
 
     def _frame_camera(self, cam: Camera) -> tuple:
         """What :func:`starid.frame_kernels.solve_frame` takes of an ideal pinhole ``cam``:
-        its affine maps, size, the view's half-diagonal + 1e-3 rad and the pixel scale
+        its affine maps, size, the view's half-angle + 1e-3 rad (``Camera._view_half_rad``:
+        the farthest corner from the optical axis) and the pixel scale
         (kept for the solver's own camera: a few µs a frame)."""
         kept = self._frame_camera_kept
         if kept is not None and kept[0] is cam:
             return kept[1]
         M, off, A, c = cam._ideal_pinhole
         out = (M, off, A, c, float(cam.width), float(cam.height),
-               0.5 * math.radians(cam.diagonal_fov_deg) + 1e-3, float(cam.pixel_scale_rad))
+               cam._view_half_rad + 1e-3, float(cam.pixel_scale_rad))
         if cam is self.camera:
             self._frame_camera_kept = (cam, out)
         return out

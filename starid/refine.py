@@ -213,7 +213,7 @@ class Refinement:
         M, off, A, c = cam0._ideal_pinhole
         det = np.array([d for d, _ in sol.matches], dtype=np.int64)
         cat = self._catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
-        view_half = 0.5 * math.radians(cam0.diagonal_fov_deg) + 1e-3
+        view_half = cam0._view_half_rad + 1e-3
         idx, vec = self._cone(rot.to_matrix(sol.q_cam_icrs)[2], view_half)
         c_axis, c_half = self._cone_cache[0], self._cone_cache[1]
         xy = np.ascontiguousarray(xy_all, dtype=np.float64)

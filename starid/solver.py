@@ -580,7 +580,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
                  ) -> tuple[NDArray, NDArray[np.int64]]:
         """Pixel positions and catalogue indices of the stars in the frame at attitude R
         (cam ← icrs), ``margin_rad`` beyond its edges."""
-        half = 0.5 * math.radians(cam.diagonal_fov_deg) + margin_rad + 1e-3
+        half = cam._view_half_rad + margin_rad + 1e-3
         idx, vec = self._cone(R[2], half)  # R[2]: the camera +z axis in ICRS
         ideal = cam._ideal_pinhole
         if ideal is None:

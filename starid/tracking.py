@@ -139,7 +139,7 @@ class Tracking:
         M1, off, A, c = cam._ideal_pinhole
         # (N, 3) input with flux leaves a strided view: one memory layout, one compilation
         xy = np.ascontiguousarray(xy)
-        half = 0.5 * math.radians(cam.diagonal_fov_deg) + gate_rad + 1e-3
+        half = cam._view_half_rad + gate_rad + 1e-3
         m = -gate_rad / cam.pixel_scale_rad
         rows, all_rows = self._tracking_rows(R0[2], half)
         pred_xy, pred_idx, b_all = tk.predict_pinhole(

@@ -413,6 +413,62 @@ def test_the_lean_state_is_made_once_and_each_thread_gets_its_own_work_arrays(ca
     assert "_lean" not in vars(solver)
 
 
+def test_a_setting_assigned_while_the_state_is_made_is_not_lost(cat, monkeypatch):
+    """Another thread assigns a setting while a solve is making the lean state from the old
+    value: that state must not be kept, or every later lean solve would use the old value.
+    (The state's constructor waits for the assignment, to make the interleaving sure.)"""
+    import threading
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    solver.warm_up()  # the triangles have joined the index: no solve assigns it later
+    solver.p_false_max = solver.p_false_max  # the state dropped
+    xy = np.ascontiguousarray(sky_frame(cat, cam, np.random.default_rng(3), n_false=2)[0])
+    making, assigned = threading.Event(), threading.Event()
+    real = frame_kernels.lean_state
+
+    def slow(*a):  # the old settings already read
+        making.set()
+        assigned.wait()
+        return real(*a)
+
+    monkeypatch.setattr(frame_kernels, "lean_state", slow)
+    worker = threading.Thread(target=solver.solve, args=(xy,))
+    worker.start()
+    making.wait()
+    solver.p_false_max = 1e-300  # nothing may pass now
+    assigned.set()
+    worker.join()
+    monkeypatch.setattr(frame_kernels, "lean_state", real)
+    a = solver.solve(xy)
+    _same(a, solver.solve(xy.tolist()))
+    assert not a.ok
+
+
+def test_deleting_an_attribute_drops_the_state_and_a_solver_pickles_and_copies(cat):
+    """``del`` restores a class default (here: the one-call path itself), so it drops the
+    lean state as an assignment does; a solver that has solved on an array can still be
+    pickled and deep-copied (its compiled state is made again where it is used), and the
+    copies solve alike."""
+    import copy
+    import pickle
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    solver.warm_up()  # the triangles have joined the index: no solve assigns it later
+    xy = np.ascontiguousarray(sky_frame(cat, cam, np.random.default_rng(5), n_false=1)[0])
+    solver._frame_kernel = False
+    solver.solve(xy)
+    assert solver._lean is False  # the lean path does not apply
+    del solver._frame_kernel
+    a = solver.solve(xy)
+    assert isinstance(solver._lean[0], frame_kernels.LeanState)
+    for twin in (pickle.loads(pickle.dumps(solver)), copy.deepcopy(solver)):
+        assert "_lean" not in vars(twin)
+        _same(twin.solve(xy), a, fitted=True)
+        assert isinstance(twin._lean[0], frame_kernels.LeanState)
+
+
 def test_the_compiled_paths_solutions_are_made_as_their_classes_make_them(cat):
     """The compiled path builds its Solution and Candidates without their __init__
     (solution.made): every field present, each the object __init__ would keep."""

@@ -76,3 +76,41 @@ def test_an_uncertain_camera_keeps_the_python_refit(cat, monkeypatch):
     assert s.solve(xy).ok and not calls
     s2 = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0))
     assert s2.solve(sky_frame(cat, s2.camera, np.random.default_rng(4))[0]).ok and calls
+
+
+def test_a_principal_point_off_the_centre_keeps_the_far_corners_stars(cat):
+    """With the principal point 100 px and 60 px off the frame's centre, the farthest corner
+    is ~0.6° beyond half the diagonal field: the compiled refit's catalogue cone (and the
+    tracking path's prediction) must reach it. The compiled refit (lean path), the Python
+    refit and tracking from the true attitude match the same stars, among them stars
+    beyond half the diagonal."""
+    from adfusion.starid import rotations as rot
+    from adfusion.starid.solution import Prior
+    from adfusion.starid.view import stars_in_view
+
+    K = starid.Camera.pinhole(1024, 768, 15.0).K.copy()
+    K[0, 2] += 100.0
+    K[1, 2] += 60.0
+    cam = starid.Camera(K, np.zeros(5), 1024, 768)
+    half_diagonal = 0.5 * np.radians(cam.diagonal_fov_deg)
+    assert cam._view_half_rad > half_diagonal + np.radians(0.5)
+    fast, slow = starid.Solver(cat, cam), starid.Solver(cat, cam)
+    slow._compiled_refine = False
+    rng = np.random.default_rng(0)
+    beyond = [0, 0]  # matched stars beyond half the diagonal: lost in space, tracking
+    for _ in range(60):
+        q = rot.q_cam_icrs_from_radec_roll(rng.uniform(0, 2 * np.pi),
+                                           np.arcsin(rng.uniform(-1, 1)),
+                                           rng.uniform(0, 2 * np.pi))
+        _, xy = stars_in_view(cat, cam, q, brightest_first=True)
+        if len(xy) < 5:
+            continue
+        xy = np.ascontiguousarray(xy + rng.normal(0, 0.3, xy.shape))
+        a, b = fast.solve(xy), slow.solve(xy.tolist())
+        t = fast.solve(xy, prior=Prior(q, 0.01))
+        assert a.ok and b.ok and t.ok
+        assert sorted(a.matches) == sorted(b.matches)
+        for sol, k in ((a, 0), (t, 1)):
+            off_axis = np.arccos(cam.pixels_to_vectors(xy[[d for d, _ in sol.matches]])[:, 2])
+            beyond[k] += int((off_axis > half_diagonal + 1e-3).sum())
+    assert min(beyond) > 0
