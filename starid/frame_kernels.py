@@ -150,7 +150,7 @@ def _refit(ix, q, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, height,
         idx, vec = _cone(ix, axis, half, anchor, theta)
         out = refine_pinhole(xy_all, ok_all, det, cat, v, M, off, A, c, width, height, idx,
                              vec, axis, half, view_half, pix, r_min, sigma0, consts[0],
-                             consts[1], consts[2], consts[3])
+                             consts[1], consts[2], consts[3], q)
         if out[0] >= 0 or theta == np.inf:
             return out
     return out

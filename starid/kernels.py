@@ -1233,8 +1233,14 @@ def _quaternion_of(R):
 def _wahba(b, r, sigma):
     """``attitude.wahba_unit`` with one sigma: (ok, q, covariance, residuals, loss); ok
     False where it raises (collinear directions)."""
-    n = b.shape[0]
     R, proper = _rotation(b, r)
+    return _wahba_at(b, r, sigma, R, proper)
+
+
+@_jit
+def _wahba_at(b, r, sigma, R, proper):
+    """:func:`_wahba` with ``_rotation(b, r)`` already computed (R, proper)."""
+    n = b.shape[0]
     cov = np.zeros((3, 3))
     res = np.zeros(n)
     if not proper:
@@ -1326,7 +1332,7 @@ def _median_of_squares(d):
 @_jit
 def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx, cone_vec,
                    cone_axis, cone_half, view_half, pix, r_min, sigma0, reject_sigma,
-                   radius_sigma, radius_max_factor, prior_dof):
+                   radius_sigma, radius_max_factor, prior_dof, q_fit):
     """:meth:`starid.refine.Refinement._refine` for a camera that is not fitted and is an
     ideal pinhole (``M``, ``off``, ``A``, ``c``: ``Camera._ideal_pinhole``): from the
     verified pairs (detections ``det`` → catalogue rows ``cat``) the attitude refitted, the
@@ -1338,7 +1344,11 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
     half-angle ``cone_half``) the solver cached; ``view_half`` is the half-angle a frame
     needs. Returns (status, det, cat, q, covariance, residuals, sigma_px, rejected):
     status 1 refined, 0 keep the verified fit (where the Python code returns it unchanged),
-    −1 the cone does not cover an attitude (the caller runs the Python code)."""
+    −1 the cone does not cover an attitude (the caller runs the Python code).
+
+    ``q_fit``: the first round's fit of ``det`` → ``cat`` at ``sigma0`` when the caller has
+    it — :func:`verify_candidate`'s attitude is that fit, the same operations on the same
+    values — or empty (fitted here)."""
     n_xy = xy.shape[0]
     empty_i = np.zeros(0, dtype=np.int64)
     nothing = (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
@@ -1355,15 +1365,17 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
         k = len(det)
         if k < 3:
             return nothing
-        b = _to_vectors(xy[det], M, off)
         r = np.empty((k, 3))
         for s in range(k):
             for j in range(3):
                 r[s, j] = v[cat[s], j]
-        good, q, _, _, _ = _wahba(b, r, sigma0 * pix)
-        if not good:
-            return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0,
-                    0)
+        if it == 0 and len(q_fit) == 4:
+            q = q_fit
+        else:
+            good, q, _, _, _ = _wahba(_to_vectors(xy[det], M, off), r, sigma0 * pix)
+            if not good:
+                return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0),
+                        0.0, 0)
         R = _matrix_of(q)
         res = np.empty((k, 2))
         for s in range(k):
@@ -1546,7 +1558,8 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
         for j in range(3):
             tr += R[i, j] * R2[i, j]
     moved = math.sqrt(max(0.0, 2.0 * (3.0 - tr) / 2.0))
-    if moved > 0.25 * radius:
+    again = moved > 0.25 * radius  # associated again: other pairs, another rotation
+    if again:
         n_det = b_all.shape[0]
         bound = 2 * math.sin(radius / 2)
         bound2 = bound * bound
@@ -1590,7 +1603,10 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
                 b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
     if k < 2:
         return fail
-    good, q, cov, res, loss = _wahba(b, r, sigma)
+    if again:
+        good, q, cov, res, loss = _wahba(b, r, sigma)
+    else:  # the same pairs: R2 is their rotation
+        good, q, cov, res, loss = _wahba_at(b, r, sigma, R2, proper)
     if not good:
         return fail
     dof = 2 * k - 3

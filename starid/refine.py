@@ -55,6 +55,9 @@ _RADIUS_MAX_FACTOR = 5.0
 # pseudo-degrees of freedom of the configured noise in the a-posteriori estimate: a frame
 # with few stars says little about its noise
 _PRIOR_DOF = 0.0
+# kernels.refine_pinhole's first fit made by the kernel: a verified candidate's attitude
+# from the numpy verification need not be the kernel's own fit to the bit
+_FIT_HERE = np.zeros(0)
 
 
 def noise_from_residuals(res_px: NDArray, radius_px: float, n_params: int) -> float:
@@ -222,7 +225,7 @@ class Refinement:
             float(cam0.width), float(cam0.height), idx, vec, c_axis, float(c_half),
             view_half, cam0.pixel_scale_rad, float(self._match_radius_px()),
             self.centroid_sigma_px, _REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR,
-            float(_PRIOR_DOF))
+            float(_PRIOR_DOF), _FIT_HERE)
         if status < 0:
             return None
         if status == 0:
