@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 from adfusion.starid.kernels import (
-    NOTE_NONE,
+    SEARCH_START,
     STRONG,
     _jit,
     _matrix_of,
@@ -53,7 +53,7 @@ from numpy.typing import NDArray
 
 __all__ = ["ACCEPTED", "LEAN_WALK", "NONE", "NO_ROOM", "PACKED_HEADER", "REFUSED", "SEVERAL",
            "LeanState", "input_problem", "lean_state", "solve_frame", "solve_frame_packed",
-           "solve_lean", "unpack", "verify_weak"]
+           "solve_lean", "unpack", "verify_weak", "walk_parts"]
 
 # solve_frame() outcome; solve_lean()'s own: the input check refused the detections, or
 # the work arrays it was given are too small for the solver
@@ -526,8 +526,21 @@ _LEAN_FIELDS = ("ids", "ix", "M", "off", "A", "c", "width", "height", "view_half
 structref.define_proxy(LeanState, _LeanStateType, list(_LEAN_FIELDS))
 
 #: :func:`solve_lean`'s walk array: the search's state (8), the no-match sets' count (1),
-#: then the no-match sets (``no_match_len``)
+#: then the no-match sets (``no_match_len``): :func:`walk_parts`
 LEAN_WALK = 9
+
+
+@_jit
+def walk_parts(walk, no_match_len):
+    """Views of :func:`solve_lean`'s walk array as the search's (state (8,), no-match sets
+    (1, ``no_match_len``), their count (1,)) — :func:`solve_frame`'s arguments.
+
+    >>> import numpy as np
+    >>> [p.shape for p in walk_parts(np.zeros(LEAN_WALK + 5, dtype=np.int64), 5)]
+    [(8,), (1, 5), (1,)]
+    """
+    return (walk[:8], walk[LEAN_WALK:LEAN_WALK + no_match_len].reshape((1, no_match_len)),
+            walk[8:9])
 
 
 @_jit
@@ -567,15 +580,13 @@ def solve_lean(st, xy, work, walk):
         return _lean_flag(NO_ROOM)
     if n < 3 or input_problem(xy, n, st.width, st.height, st.slack)[0] != 0:
         return _lean_flag(REFUSED)
-    state = walk[:8]
-    state[:] = 0
-    state[3], state[5] = -1, NOTE_NONE
-    walk[8] = 0
-    walk[LEAN_WALK:LEAN_WALK + st.no_match_len] = 0
-    no_match = walk[LEAN_WALK:LEAN_WALK + st.no_match_len].reshape((1, st.no_match_len))
+    state, no_match, n_no_match = walk_parts(walk, st.no_match_len)
+    state[:] = SEARCH_START
+    no_match[:] = 0
+    n_no_match[0] = 0
     lo, hi = st.pat_start[n], st.pat_start[n + 1]
     return solve_frame_packed(
         st.ids, st.ix, xy[:n], xy, st.M, st.off, st.A, st.c, st.width, st.height,
         st.view_half, st.pix, st.tolerance_rad, state, st.pats[lo:hi], st.plen[lo:hi],
-        st.budget, no_match, walk[8:9], st.max_partials, work, st.r_min_px, st.sigma0_px,
+        st.budget, no_match, n_no_match, st.max_partials, work, st.r_min_px, st.sigma0_px,
         st.p_false_max, st.distinct_rad, True, st.consts)

@@ -44,8 +44,8 @@ from adfusion.starid.verify import DENSITY_SAFETY
 from numba import types
 from numba.typed import Dict
 
-__all__ = ["SKY_CELLS", "binomial_tail", "index_arrays", "match", "quick_checks", "scratch",
-           "search", "sky_map", "triangle_store"]
+__all__ = ["SEARCH_START", "SKY_CELLS", "binomial_tail", "index_arrays", "match",
+           "quick_checks", "scratch", "search", "sky_map", "triangle_store", "with_triangles"]
 
 # cached on disk, keyed by this file and the modules it compiles in (starid.jit_cache)
 _jit = njit_cached(nogil=True)
@@ -61,6 +61,10 @@ TRIANGLES_KEPT_MAX = 250_000
 # search() status (state[4]) and budget-note kinds (state[5])
 DONE, STRONG = 0, 1
 NOTE_NONE, NOTE_WORK, NOTE_PATTERNS = 0, 1, 2
+#: search()'s state at a frame's first trial: pattern 0, guess 0, none tried, no first
+#: matching counter, DONE, no note (read, not written: callers copy it)
+SEARCH_START = np.array([0, 0, 0, -1, DONE, NOTE_NONE, 0, 0], dtype=np.int64)
+SEARCH_START.flags.writeable = False
 # association: angular slack (rad) of the neighbour-row annulus, far above the rounding
 # of an arccos near 0 (~1.5e-8 rad) and far below any match radius
 _SLACK = 1e-7
@@ -90,6 +94,14 @@ def index_arrays(index, triangles: tuple | None = None,
             pair_bins(index.pair_cos, float(index.max_sep_rad)), tri, offs,
             float(cell_rad), int(n_cells), words, int(m), float(sky_rad),
             _cos_deviation(index.vectors, index.pair_i, index.pair_j, index.pair_cos))
+
+
+def with_triangles(ix: tuple, triangles: tuple) -> tuple:
+    """:func:`index_arrays`' tuple ``ix`` with the catalogue triangles
+    (:func:`starid.triangle_index.triangles_for`) in place of its members 10–13, the rest
+    kept as computed (the pair bins and the cosines' deviation take ~1 ms each)."""
+    tri, offs, cell_rad, n_cells = triangles
+    return (*ix[:10], tri, offs, float(cell_rad), int(n_cells), *ix[14:])
 
 
 @_jit

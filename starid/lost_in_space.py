@@ -46,13 +46,10 @@ _FLOAT64 = np.dtype(np.float64)  # (an identity test: cheaper than comparing dty
 #: a lost-in-space fix explaining fewer than this share of the detections the search used
 #: has the rest of them searched too (``Solver._rest_checked``)
 REST_CHECK_SHARE = 0.5
-# kernels.search's state at a frame's first trial (copied: cheaper than building it)
-_STATE0 = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
 # the lean path: a thread's work arrays before its first call (too small: the kernel asks
-# for them), where the no-match sets start in its walk array, empty pattern lists (fewer
-# than 3 detections), and the attributes a solve caches (they keep its state)
+# for them), empty pattern lists (fewer than 3 detections), and the attributes a solve
+# caches (they keep its state)
 _NO_LEAN = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
-_LEAN_SETS = frame_kernels.LEAN_WALK
 _NO_PATS, _NO_COUNTS = np.zeros((0, 8), dtype=np.int64), np.zeros(0, dtype=np.int64)
 _LEAN_KEEPS = frozenset({"_lean", "_frame_camera_kept", "_cone_cache", "_triangles_done"})
 
@@ -97,13 +94,38 @@ def resolve_by_evidence(cands: list[Candidate]) -> tuple[Candidate | None, str]:
                   f"({'; '.join(reasons)})")
 
 
+def _candidate(det: list[int], ids: list[int], q: NDArray, cov: NDArray, res: NDArray,
+               p_false: float, n_pattern: int, cam: Camera, project: Callable) -> Candidate:
+    """A verified candidate of the compiled path: pairs detection → catalogue id."""
+    return made(Candidate, {
+        "q_cam_icrs": q, "matches": list(zip(det, ids, strict=True)), "residuals_rad": res,
+        "p_false": p_false, "n_pattern": n_pattern, "camera": cam, "covariance": cov,
+        "_projector": project})
+
+
+def _refitted(refit: tuple, counter: int, p_false: float, path: str,
+              found: list[Candidate], cam: Camera, time_s: float = 0.0, n: int = 0,
+              tried: int = 0) -> Solution:
+    """The solution of one accepted attitude (its candidate's ``p_false``) refitted in the
+    kernel (``refit``: :func:`starid.frame_kernels.unpack`'s, status 1), with the solve's
+    time, detections and trials when they are known."""
+    _, d, h, rq, rcov, rres, sigma_px, rejected = refit
+    return made(Solution, {
+        "ok": True, "reason": "", "q_cam_icrs": rq, "matches": list(zip(d, h, strict=True)),
+        "matching_counter": counter, "covariance": rcov, "mode": "lost-in-space",
+        "time_s": time_s, "p_false": p_false, "path": path, "candidates": found,
+        "residuals_rad": rres, "camera": cam, "n_detections": n, "patterns_tried": tried,
+        "sigma_px": sigma_px,
+        "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+        "n_predicted": 0})
+
+
 def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
               project: Callable, paths: list[str], n: int, t0: float) -> Solution:
     """The :class:`Solution` of a frame whose compiled call accepted one attitude and
     refitted it, read straight from :func:`starid.frame_kernels.solve_frame_packed`'s
-    arrays (``every``: the integers as a list) — what :func:`starid.frame_kernels.unpack`,
-    :meth:`LostInSpace._candidate` and :meth:`LostInSpace._refitted` make of them, without
-    their intermediate tuples and calls: ~5 µs of a ~75 µs frame in cold caches
+    arrays (``every``: the integers as a list) — what :func:`starid.frame_kernels.unpack`
+    reads, without its intermediate tuples: ~5 µs of a ~75 µs frame in cold caches
     (docs/benchmarks.md, "One call, four arguments"). ``paths``: the path of each of the
     frame's patterns."""
     counter, n_acc, n_c, n_sel, _, rejected, m, _, pattern, tried = \
@@ -117,24 +139,23 @@ def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
     f = n_c + 1
     found = []
     for i, k in enumerate(counts):
-        found.append(made(Candidate, {
-            "q_cam_icrs": floats[f:f + 4],
-            "matches": list(zip(every[o:o + k], every[o + k:o + 2 * k], strict=True)),
-            "residuals_rad": floats[f + 13:f + 13 + k], "p_false": scalars[i],
-            "n_pattern": n_sel, "camera": cam,
-            "covariance": floats[f + 4:f + 13].reshape(3, 3), "_projector": project}))
+        found.append(_candidate(every[o:o + k], every[o + k:o + 2 * k], floats[f:f + 4],
+                                floats[f + 4:f + 13].reshape(3, 3),
+                                floats[f + 13:f + 13 + k], scalars[i], n_sel, cam, project))
         o += 2 * k
         f += 13 + k
-    return made(Solution, {
-        "ok": True, "reason": "", "q_cam_icrs": floats[f:f + 4],
-        "matches": list(zip(every[o:o + m], every[o + m:o + 2 * m], strict=True)),
-        "matching_counter": counter, "covariance": floats[f + 4:f + 13].reshape(3, 3),
-        "mode": "lost-in-space", "time_s": time.perf_counter() - t0,
-        "p_false": found[best].p_false, "path": paths[pattern], "candidates": found,
-        "residuals_rad": floats[f + 13:f + 13 + m], "camera": cam, "n_detections": n,
-        "patterns_tried": tried, "sigma_px": scalars[n_c],
-        "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-        "n_predicted": 0})
+    refit = (1, every[o:o + m], every[o + m:o + 2 * m], floats[f:f + 4],
+             floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + m], scalars[n_c],
+             rejected)
+    return _refitted(refit, counter, found[best].p_false, paths[pattern], found, cam,
+                     time.perf_counter() - t0, n, tried)
+
+
+def input_bounds(cam: Camera) -> tuple[float, float, float]:
+    """The input check's frame (:func:`starid.frame_kernels.input_problem`): width, height
+    and how far outside it (px) a detection the search uses is refused as far outside —
+    half the longer side."""
+    return float(cam.width), float(cam.height), 0.5 * max(cam.width, cam.height)
 
 
 class LostInSpace:
@@ -333,9 +354,9 @@ class LostInSpace:
         ok, n, det, cat, q, cov, res, p = frame_kernels.verify_weak(
             self._ix, np.ascontiguousarray(xy, dtype=np.float64), M, off, self.tolerance_rad,
             rows, self._match_radius_px(), self.centroid_sigma_px, cam.pixel_scale_rad)
-        return [self._candidate(det[k, :n[k]].tolist(), self.ids[cat[k, :n[k]]].tolist(),
-                                q[k], cov[k], res[k, :n[k]], float(p[k]), len(best[k][1]),
-                                cam)
+        return [_candidate(det[k, :n[k]].tolist(), self.ids[cat[k, :n[k]]].tolist(), q[k],
+                           cov[k], res[k, :n[k]], float(p[k]), len(best[k][1]), cam,
+                           self._project)
                 for k in range(len(best)) if ok[k]]
 
     def _solve_lean(self, arr: NDArray[np.float64], t0: float) -> Solution | None:
@@ -363,7 +384,7 @@ class LostInSpace:
             # a header alone: refused, or this thread's first lean call (NO_ROOM)
             if len(ints) == frame_kernels.PACKED_HEADER and ints[0] == frame_kernels.NO_ROOM:
                 work, walk = _SCRATCH.lean = (self._scratch(), np.zeros(
-                    frame_kernels.LEAN_WALK + self.max_patterns + 2, dtype=np.int64))
+                    frame_kernels.LEAN_WALK + cols, dtype=np.int64))
                 ints, floats = frame_kernels.solve_lean(st, arr, work, walk)
         except BaseException:
             self._drop_scratch()
@@ -381,39 +402,14 @@ class LostInSpace:
                 return sol  # what _rest_checked decides of it, without the call
         else:
             # the walk continues from the call's state (copied: the array is the thread's)
-            first = ((walk[:8].copy(), walk[_LEAN_SETS:_LEAN_SETS + cols].reshape(1, cols).copy(),
-                      walk[8:9].copy()), frame_kernels.unpack(ints, floats))
+            first = (tuple(a.copy() for a in frame_kernels.walk_parts(walk, cols)),
+                     frame_kernels.unpack(ints, floats))
             sol, tried, filled = self._frame_solution(arr[:n], cam, arr, None, None, t0,
                                                       first=first)
             if not filled:
                 sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=n,
                               patterns_tried=tried)
         return self._rest_checked(sol, arr, arr[:n], t0)
-
-    def _candidate(self, det: list[int], ids: list[int], q: NDArray, cov: NDArray,
-                   res: NDArray, p_false: float, n_pattern: int, cam: Camera) -> Candidate:
-        """A verified candidate of the compiled path: pairs detection → catalogue id."""
-        return made(Candidate, {
-            "q_cam_icrs": q, "matches": list(zip(det, ids, strict=True)),
-            "residuals_rad": res, "p_false": p_false, "n_pattern": n_pattern, "camera": cam,
-            "covariance": cov, "_projector": self._project})
-
-    @staticmethod
-    def _refitted(refit: tuple, counter: int, best: Candidate, path: str,
-                  found: list[Candidate], cam: Camera, done: dict) -> Solution:
-        """The solution of one accepted attitude ``best`` refitted in the kernel (``refit``:
-        :func:`starid.frame_kernels.unpack`'s, status 1), with ``done``'s fields (time,
-        detections, trials) when they are known."""
-        _, d, h, rq, rcov, rres, sigma_px, rejected = refit
-        return made(Solution, {
-            "ok": True, "reason": "", "q_cam_icrs": rq, "matches": list(zip(d, h, strict=True)),
-            "matching_counter": counter, "covariance": rcov, "mode": "lost-in-space",
-            "time_s": done.get("time_s", 0.0), "p_false": best.p_false, "path": path,
-            "candidates": found, "residuals_rad": rres, "camera": cam,
-            "n_detections": done.get("n_detections", 0),
-            "patterns_tried": done.get("patterns_tried", 0), "sigma_px": sigma_px,
-            "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
-            "n_predicted": 0})
 
     def _rest_wanted(self, n_used: int, n: int) -> bool:
         """Whether a fix that explains ``n_used`` of the ``n`` detections the search used
@@ -425,21 +421,19 @@ class LostInSpace:
         """:meth:`_solve_lean`'s compiled state of this solver's settings, index and camera
         (:func:`starid.frame_kernels.lean_state`), the paths of every detection count's
         patterns (Renken's, :meth:`_pattern_list`) and the length of the walk's no-match
-        sets, or False where the lean path does not
-        apply (another method, the numpy matchers, a camera that is no ideal pinhole or is
-        fitted, a focal range). Made on the first call and dropped by any assignment to the
-        solver (:meth:`__setattr__`): every setting a solve reads is one of its
-        attributes."""
+        sets, or False where the lean path does not apply (another method, the numpy
+        matchers, a camera that is no ideal pinhole or is fitted, a focal range). Made on
+        the first call and dropped by any assignment to the solver (:meth:`__setattr__`):
+        every setting a solve reads is one of its attributes."""
         cam = self.camera
-        if not (cam._ideal_pinhole is not None and self.method == "nstar" and self._compiled
-                and self._frame_kernel and self._compiled_verify and self._compiled_refine
-                and not self._fov_uncertain and self._fit_terms() is None):
+        if not (self._frame_path([cam]) and self.method == "nstar" and self._compiled_refine
+                and self._fit_terms() is None):
             return False
         lists = [self._pattern_list(n, False) if n >= 3 else (_NO_PATS, _NO_COUNTS, [])
                  for n in range(self.max_detections + 1)]
         start = np.cumsum([0] + [len(c) for _, c, _ in lists], dtype=np.int64)
         st = frame_kernels.lean_state(
-            self.ids, self._ix, *self._frame_camera(cam), 0.5 * max(cam.width, cam.height),
+            self.ids, self._ix, *self._frame_camera(cam), input_bounds(cam)[2],
             self.tolerance_rad, self.max_detections,
             np.ascontiguousarray(np.concatenate([p for p, _, _ in lists])),
             np.concatenate([c for _, c, _ in lists]), start, self._trial_budget(1),
@@ -455,16 +449,17 @@ class LostInSpace:
         # making meanwhile from the old value is not kept (_solve_lean compares counts)
         if name in _LEAN_KEEPS:
             object.__setattr__(self, name, value)
-            return
-        d = self.__dict__
-        d["_lean_changes"] = d.get("_lean_changes", 0) + 1
-        object.__setattr__(self, name, value)
-        d.pop("_lean", None)
+        else:
+            self._lean_changed(object.__setattr__, name, value)
 
     def __delattr__(self, name: str) -> None:
+        self._lean_changed(object.__delattr__, name)
+
+    def _lean_changed(self, change: Callable, *args) -> None:
+        """``change(self, *args)`` between counting the change and dropping the state."""
         d = self.__dict__
         d["_lean_changes"] = d.get("_lean_changes", 0) + 1
-        object.__delattr__(self, name)
+        change(self, *args)
         d.pop("_lean", None)
 
     def __getstate__(self) -> dict:
@@ -521,7 +516,7 @@ class LostInSpace:
             if not self._triangles_done:
                 table = triangles_for(self.index, self.tolerance_rad, self._cache_tag)
                 if table is not None:
-                    self._ix = kernels.index_arrays(self.index, table, self._sky)
+                    self._ix = kernels.with_triangles(self._ix, table)
                 self._triangles_done = True
 
     def _scratch(self) -> NDArray[np.int64]:
@@ -583,7 +578,7 @@ class LostInSpace:
 
     def _fresh_walk(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
         """A search's start for :meth:`_frame_call`: state, no-match sets, their counts."""
-        return (_STATE0.copy(), np.zeros((1, self.max_patterns + 2), dtype=np.int64),
+        return (kernels.SEARCH_START.copy(), np.zeros((1, self.max_patterns + 2), dtype=np.int64),
                 np.zeros(1, dtype=np.int64))
 
     def _frame_solution(self, xy: NDArray, cam: Camera, xy_all: NDArray | None,
@@ -632,7 +627,7 @@ class LostInSpace:
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
             return self._unsolved(xy, [cam], None, None, run), tried, False
-        found = [self._candidate(*c, len(sel), cam) for c in cands]
+        found = [_candidate(*c, len(sel), cam, self._project) for c in cands]
         path = paths[pos]
         accepted = [found[i] for i in order]
         if outcome == frame_kernels.SEVERAL:
@@ -647,9 +642,8 @@ class LostInSpace:
         best = accepted[0]
         status = refit[0]
         if status == 1:
-            done = {} if t0 is None else {"time_s": time.perf_counter() - t0,
-                                          "n_detections": len(xy), "patterns_tried": tried}
-            return (self._refitted(refit, counter, best, path, found, cam, done), tried,
+            done = () if t0 is None else (time.perf_counter() - t0, len(xy), tried)
+            return (_refitted(refit, counter, best.p_false, path, found, cam, *done), tried,
                     t0 is not None)
         sol = self._solution(best, counter, path, found)
         if xy_all is not None and (status == -1 or not refine):
@@ -667,7 +661,7 @@ class LostInSpace:
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
         n_cams = len(cams)
-        state = _STATE0.copy()
+        state = kernels.SEARCH_START.copy()
         no_match = np.zeros((n_cams, self.max_patterns + 2), dtype=np.int64)
         n_no_match = np.zeros(n_cams, dtype=np.int64)
         pix = np.array([cam.pixel_scale_rad for cam in cams])

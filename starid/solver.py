@@ -49,7 +49,13 @@ from adfusion.starid import rotations as rot
 from adfusion.starid.bleif_bridge import BleifBridge
 from adfusion.starid.camera import Camera
 from adfusion.starid.index import PatternIndex, catalog_cache_tag
-from adfusion.starid.lost_in_space import EVIDENCE_RATIO, LostInSpace, PairWindows, Search
+from adfusion.starid.lost_in_space import (
+    EVIDENCE_RATIO,
+    LostInSpace,
+    PairWindows,
+    Search,
+    input_bounds,
+)
 from adfusion.starid.nstar import Pattern, match_faithful, match_indexed
 from adfusion.starid.refine import Refinement
 from adfusion.starid.solution import Candidate, Prior, Solution
@@ -502,9 +508,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         # compiled (frame_kernels.input_problem): this runs per frame, and its half-dozen
         # numpy calls cost more than the checks
         use = xy[: self.max_detections]
-        code, a, b = frame_kernels.input_problem(
-            np.ascontiguousarray(xy), len(use), float(self.camera.width), float(self.camera.height),
-            0.5 * max(self.camera.width, self.camera.height))
+        code, a, b = frame_kernels.input_problem(np.ascontiguousarray(xy), len(use),
+                                                 *input_bounds(self.camera))
         if code == 1:
             return xy, f"bad input: {a} non-finite centroid(s), first at row {b}"
         if code == 2:
