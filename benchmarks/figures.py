@@ -339,6 +339,9 @@ def starid_section(doc: dict[str, Any], command: str,
         before = None  # ratios from another machine do not compare
     label = f"`{_commit(before)}`" if before and _commit(before) else "an earlier run"
     load = doc["machine"].get("loadavg")
+    hot = doc["config"].get("hot_repeats", 0) > 0 and bool(peers)
+    if doc["config"].get("hot_repeats", 0) > 0 and "--hot" not in command:
+        command += f" --hot {doc['config']['hot_repeats']}"
     lines = [
         "### Lost-in-space against the peers, interleaved",
         "",
@@ -352,8 +355,9 @@ def starid_section(doc: dict[str, Any], command: str,
             f"avail % (err) {p}" for p in peers) + " | ours median / p95 | " + " | ".join(
             f"{p} median / p95 | ours ÷ {p} median / p95" for p in peers)
         + (f" | before ({label}) ÷ {peers[0]} median / p95" if before and peers else "")
-        + " |",
-        "|---" * (3 + 3 * len(peers) + (1 if before and peers else 0)) + "|",
+        + (f" | hot: ours / {peers[0]} median, ratio" if hot else "") + " |",
+        "|---" * (3 + 3 * len(peers) + (1 if before and peers else 0) + (1 if hot else 0))
+        + "|",
     ]
     earlier = {c["name"]: c for c in before["conditions"]} if before and peers else {}
     for c in doc["conditions"]:
@@ -373,7 +377,17 @@ def starid_section(doc: dict[str, Any], command: str,
             rm = e and e["cpu_ratio_ours_over_peer"].get(peers[0])
             r95 = e and e["cpu_p95_ratio_ours_over_peer"].get(peers[0])
             row.append(f"{rm:.2f} / {r95:.2f}" if rm and r95 else "—")
+        if hot:
+            h = c.get("hot_cpu_time_ms", {})
+            rh = c.get("hot_cpu_ratio_ours_over_peer", {}).get(peers[0])
+            row.append(f"{h['ours']['median']:.3f} / {h[peers[0]]['median']:.3f}, {rh:.2f}"
+                       if rh and "ours" in h and peers[0] in h else "—")
         lines.append("| " + " | ".join(row) + " |")
+    if hot:
+        lines += ["", f"Hot: each frame solved {doc['config']['hot_repeats']} more times by "
+                  "each solver right after the first solves, the last one's CPU time (the "
+                  "solver's code and data in the caches); the other columns are each "
+                  "frame's first solve."]
     return "\n".join(lines)
 
 

@@ -1021,32 +1021,43 @@ def pattern_windows(pat, b_all, tolerance_rad, rel_tol):
     its windows at one focal guess — only its own pairs computed (a frame's first pattern
     is usually its last: 15 pairs, not the table's 435): (sel, angles, tol, cos_min,
     cos_max, chirality)."""
+    n_det = len(b_all)
+    return pattern_windows_kept(pat, b_all, tolerance_rad, rel_tol,
+                                np.empty((4, n_det, n_det)),
+                                np.zeros((n_det, n_det), dtype=np.bool_))
+
+
+@_jit
+def pattern_windows_kept(pat, b_all, tolerance_rad, rel_tol, kept, done):
+    """:func:`pattern_windows` with the pair windows kept for the frame's later patterns:
+    ``kept`` (4, N, N) the angle, half-width and cosine bounds of detections (x, y) where
+    ``done[x, y]`` (N, N), filled here where not. The Not-Modus trials of a frame with
+    false stars drop or swap one star of the pattern before, so most of their pairs were
+    windowed already; :func:`_window` is symmetric to the bit (its dot product sums the
+    same products in the same order), so one call fills (x, y) and (y, x)."""
     n = len(pat)
-    la, lt = np.empty((n, n)), np.empty((n, n))
-    llo, lhi = np.empty((n, n)), np.empty((n, n))
     for i in range(n):
-        for j in range(n):
-            if j < i:
-                la[i, j], lt[i, j], llo[i, j], lhi[i, j] = (la[j, i], lt[j, i], llo[j, i],
-                                                            lhi[j, i])
-            else:
-                a, t, _, lo, hi = _window(b_all, pat[i], pat[j], tolerance_rad, rel_tol)
-                la[i, j], lt[i, j], llo[i, j], lhi[i, j] = a, t, lo, hi
-    local = np.arange(n)
-    order = _closest_pair_first(la, local)
-    sel = np.empty(n, dtype=np.int64)
+        x = pat[i]
+        for j in range(i, n):
+            y = pat[j]
+            if not done[x, y]:
+                a, t, _, lo, hi = _window(b_all, x, y, tolerance_rad, rel_tol)
+                kept[0, x, y], kept[1, x, y], kept[2, x, y], kept[3, x, y] = a, t, lo, hi
+                kept[0, y, x], kept[1, y, x], kept[2, y, x], kept[3, y, x] = a, t, lo, hi
+                done[x, y] = done[y, x] = True
+    sel = _closest_pair_first(kept[0], pat)
     a, t, lo, hi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
     bs = np.empty((n, 3))
     t_max = -np.inf
     for i in range(n):
-        sel[i] = pat[order[i]]
+        x = sel[i]
         for j in range(3):
-            bs[i, j] = b_all[sel[i], j]
+            bs[i, j] = b_all[x, j]
         for j in range(n):
-            oi, oj = order[i], order[j]
-            t_max = max(t_max, lt[oi, oj])
-            a[i, j], t[i, j], lo[i, j], hi[i, j] = la[oi, oj], lt[oi, oj], llo[oi, oj], \
-                lhi[oi, oj]
+            y = sel[j]
+            t_max = max(t_max, kept[1, x, y])
+            a[i, j], t[i, j], lo[i, j], hi[i, j] = kept[0, x, y], kept[1, x, y], \
+                kept[2, x, y], kept[3, x, y]
     chir = chirality(bs, 2.0 * t_max) if n >= 3 else 0
     return sel, a, t, lo, hi, chir
 
@@ -1093,6 +1104,9 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
     wp = np.empty((16, 1))
     wi = np.empty((16, 20), dtype=np.int64)  # pattern, guess, trial, n, sel, assignment
     nw = 0
+    # the pair windows of this call's patterns, per guess (pattern_windows_kept)
+    win_kept = np.empty((n_cams, 4, n_det, n_det))
+    win_done = np.zeros((n_cams, n_det, n_det), dtype=np.bool_)
     while pos < len(pats):
         if ci == 0 and tried >= budget:
             state[5], state[6] = NOTE_PATTERNS, tried
@@ -1109,8 +1123,8 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
                 skip = True
                 break
         if not skip:
-            sel, a, t, lo, hi, chir = pattern_windows(pat, b_cams[ci], tolerance_rad,
-                                                      rel_tol)
+            sel, a, t, lo, hi, chir = pattern_windows_kept(
+                pat, b_cams[ci], tolerance_rad, rel_tol, win_kept[ci], win_done[ci])
             # the first three stars' assignments, kept per (guess, detections, mirror
             # sign): most trials after the first drop or swap a later star (Not-Modus)
             key = (((ci * n_det + sel[0]) * n_det + sel[1]) * n_det + sel[2]) * 3 + chir + 1

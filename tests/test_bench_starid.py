@@ -135,3 +135,24 @@ def test_methods_compares_our_matchers_on_the_same_frames() -> None:
     assert "ours_bleif" in bench.format_table(doc)
     with pytest.raises(ValueError, match="unknown method"):
         bench.config_from_args(p.parse_args(["--methods", "nstar,pyramid"]))
+
+
+def test_hot_repeats_leave_the_first_solves_as_they_were() -> None:
+    """``--hot N``: each frame solved N more times, the last one's CPU time reported per
+    condition beside the ratio to the peers — the frames, outcomes and error counts of the
+    first solves (the table's) are those of a run without it."""
+    p = __import__("argparse").ArgumentParser()
+    bench.add_arguments(p)
+    base = ["--frames", "4", "--conditions", "clean,false3", "--solvers", "ours",
+            "--seed", "11", "--no-progress"]
+    cold = bench.run_benchmark(bench.config_from_args(p.parse_args(base)))
+    hot = bench.run_benchmark(bench.config_from_args(p.parse_args(base + ["--hot", "2"])))
+    assert hot["config"]["hot_repeats"] == 2
+    for c0, c1 in zip(cold["conditions"], hot["conditions"], strict=True):
+        assert "hot_cpu_time_ms" not in c0
+        r0, r1 = c0["results"]["ours"], c1["results"]["ours"]
+        for key in ("n_correct", "n_wrong", "n_failed", "availability_pct"):
+            assert r0[key] == r1[key], key
+        t = c1["hot_cpu_time_ms"]["ours"]
+        assert 0 < t["median"] <= t["p95"] <= t["max"]
+    assert "solved again (2×" in bench.format_table(hot)
