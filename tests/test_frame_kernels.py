@@ -511,3 +511,24 @@ def test_the_lean_path_follows_settings_changed_after_the_first_solve(cat):
             a = solver.solve(xy)
             _same(a, solver.solve(xy.tolist()), fitted)
             _same(a, fresh.solve(xy.tolist()), fitted)
+
+
+def test_kept_pair_windows_are_the_fresh_ones() -> None:
+    """A frame's pair windows kept across its patterns (``pattern_windows_kept``, as the
+    search keeps them) give every later pattern — overlapping ones, in any order, at a
+    relative tolerance too — the very windows, order and mirror sign a fresh
+    ``pattern_windows`` computes."""
+    rng = np.random.default_rng(5)
+    b = rng.normal(size=(24, 3))
+    b[:, 2] = np.abs(b[:, 2]) + 6.0  # a 20°-ish field
+    b /= np.linalg.norm(b, axis=1)[:, None]
+    for rel_tol in (0.0, 1e-3):
+        kept = np.empty((4, len(b), len(b)))
+        done = np.zeros((len(b), len(b)), dtype=np.bool_)
+        for _ in range(300):
+            pat = rng.choice(len(b), size=int(rng.integers(3, 9)), replace=False)
+            fresh = kernels.pattern_windows(pat, b, 3e-4, rel_tol)
+            again = kernels.pattern_windows_kept(pat, b, 3e-4, rel_tol, kept, done)
+            for x, y in zip(fresh, again, strict=True):
+                assert np.array_equal(x, y)
+        assert done.sum() > 0.5 * len(b) ** 2  # later patterns did read kept pairs
