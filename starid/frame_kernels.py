@@ -128,11 +128,11 @@ def _candidate_arrays(n_k, n_xy):
 
 
 @_jit
-def _refit(ix, q, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, height, view_half,
-           pix, r_min, sigma0, consts):
-    """:func:`starid.kernels.refine_pinhole` of an accepted candidate, on a cone around
-    its boresight: from the anchor's neighbour row, or every star when the refit leaves
-    that cone."""
+def _refit(ix, q, res, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, height,
+           view_half, pix, r_min, sigma0, consts):
+    """:func:`starid.kernels.refine_pinhole` of an accepted candidate (its attitude ``q``
+    and residuals ``res``, its fit), on a cone around its boresight: from the anchor's
+    neighbour row, or every star when the refit leaves that cone."""
     v = ix[0]
     R = _matrix_of(q)
     axis = np.empty(3)
@@ -150,7 +150,7 @@ def _refit(ix, q, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, height,
         idx, vec = _cone(ix, axis, half, anchor, theta)
         out = refine_pinhole(xy_all, ok_all, det, cat, v, M, off, A, c, width, height, idx,
                              vec, axis, half, view_half, pix, r_min, sigma0, consts[0],
-                             consts[1], consts[2], consts[3], q)
+                             consts[1], consts[2], consts[3], q, res)
         if out[0] >= 0 or theta == np.inf:
             return out
     return out
@@ -254,10 +254,11 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
         if n_acc == 1:
             i = order[0]
             refit = no_refit
-            if refine and c_n[i] >= 3:
-                refit = _refit(ix, c_q[i], rows[c_row[i], 0], xy_all, ok_all,
-                               c_det[i, :c_n[i]], c_cat[i, :c_n[i]], M, off, A, c, width,
-                               height, view_half, pix, r_min_px, sigma0_px, consts)
+            m = c_n[i]
+            if refine and m >= 3:
+                refit = _refit(ix, c_q[i], c_res[i, :m], rows[c_row[i], 0], xy_all, ok_all,
+                               c_det[i, :m], c_cat[i, :m], M, off, A, c, width, height,
+                               view_half, pix, r_min_px, sigma0_px, consts)
                 if refit[0] == 1:
                     refit = _by_detection(refit)
             return ACCEPTED, sel, n_k, cands, order[:1], 1, refit, (wp_all, wi_all)

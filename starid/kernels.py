@@ -581,27 +581,34 @@ def binomial_tail(k, m, p):
     return total
 
 
-@_jit
-def _crossing_sin(d01, d0m, d1m):
-    # sin of starid.verify._crossing_angle
-    denom = math.sin(d0m) * math.sin(d1m)
+@_jit_inline
+def _crossing_sin(c01, c0m, c1m, s0m, s1m):
+    """sin of ``starid.verify._crossing_angle`` from the cosines and sines of its angles
+    (d01, d0m, d1m)."""
+    denom = s0m * s1m
     if denom <= 0:
         return 0.0
-    c = (math.cos(d01) - math.cos(d0m) * math.cos(d1m)) / denom
+    c = (c01 - c0m * c1m) / denom
     return math.sin(math.acos(min(1.0, max(-1.0, c))))
 
 
 @_jit
 def _spot_geometry(a):
-    """:func:`starid.verify.spot_geometry`: rows (s, t) and sin γ per star m ≥ 2."""
+    """:func:`starid.verify.spot_geometry`: rows (s, t) and sin γ per star m ≥ 2 — each
+    pair's cosine and sine taken once, not once per crossing it is part of (an 8-star
+    pattern has 56 crossings of 28 pairs)."""
     n = a.shape[0]
     st = np.zeros((max(n - 2, 0), 2), dtype=np.int64)
     sg = np.zeros(max(n - 2, 0))
+    ca, sa = np.empty((n, n)), np.empty((n, n))
+    for s in range(n):
+        for t in range(s + 1, n):
+            ca[s, t], sa[s, t] = math.cos(a[s, t]), math.sin(a[s, t])
     for m in range(2, n):
         bs, bt, best = 0, 1, 0.0
         for s in range(m):
             for t in range(s + 1, m):
-                g = _crossing_sin(a[s, t], a[s, m], a[t, m])
+                g = _crossing_sin(ca[s, t], ca[s, m], ca[t, m], sa[s, m], sa[t, m])
                 if g > best:
                     bs, bt, best = s, t, g
         st[m - 2, 0], st[m - 2, 1], sg[m - 2] = bs, bt, best
@@ -1267,10 +1274,30 @@ def _wahba(b, r, sigma):
 def _wahba_at(b, r, sigma, R, proper):
     """:func:`_wahba` with ``_rotation(b, r)`` already computed (R, proper)."""
     n = b.shape[0]
-    cov = np.zeros((3, 3))
     res = np.zeros(n)
     if not proper:
+        return False, np.zeros(4), np.zeros((3, 3)), res, 0.0
+    good, cov, wres = _covariance(b, sigma)
+    if not good:
         return False, np.zeros(4), cov, res, 0.0
+    loss = 0.0
+    for s in range(n):
+        d2 = 0.0
+        for i in range(3):
+            p = r[s, 0] * R[i, 0] + r[s, 1] * R[i, 1] + r[s, 2] * R[i, 2] - b[s, i]
+            d2 += p * p
+        res[s] = 2.0 * math.asin(min(0.5 * math.sqrt(d2), 1.0))
+        loss += res[s] * res[s]
+    return True, _quaternion_of(R), cov, res, wres * loss
+
+
+@_jit
+def _covariance(b, sigma):
+    """The attitude covariance of :func:`_wahba` for directions ``b`` at centroid
+    ``sigma`` (rad) — it depends on neither the catalogue directions nor the rotation:
+    (ok, covariance, 1/σ²); ok False where the information matrix is singular."""
+    n = b.shape[0]
+    cov = np.zeros((3, 3))
     wres = 1.0 / sigma ** 2
     S = np.zeros((3, 3))
     for s in range(n):
@@ -1285,22 +1312,14 @@ def _wahba_at(b, r, sigma, R, proper):
     c02 = f01 * f12 - f02 * f11
     det = f00 * c00 + f01 * c01 + f02 * c02
     if not det > 1e-12 * (f00 + f11 + f22) ** 3:
-        return False, np.zeros(4), cov, res, 0.0
+        return False, cov, wres
     k = 1.0 / det
     cov[0, 0], cov[0, 1], cov[0, 2] = c00 * k, c01 * k, c02 * k
     cov[1, 1] = (f00 * f22 - f02 * f02) * k
     cov[1, 2] = (f01 * f02 - f00 * f12) * k
     cov[2, 2] = (f00 * f11 - f01 * f01) * k
     cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
-    loss = 0.0
-    for s in range(n):
-        d2 = 0.0
-        for i in range(3):
-            p = r[s, 0] * R[i, 0] + r[s, 1] * R[i, 1] + r[s, 2] * R[i, 2] - b[s, i]
-            d2 += p * p
-        res[s] = 2.0 * math.asin(min(0.5 * math.sqrt(d2), 1.0))
-        loss += res[s] * res[s]
-    return True, _quaternion_of(R), cov, res, wres * loss
+    return True, cov, wres
 
 
 @_jit
@@ -1358,7 +1377,7 @@ def _median_of_squares(d):
 @_jit
 def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx, cone_vec,
                    cone_axis, cone_half, view_half, pix, r_min, sigma0, reject_sigma,
-                   radius_sigma, radius_max_factor, prior_dof, q_fit):
+                   radius_sigma, radius_max_factor, prior_dof, q_fit, res_fit):
     """:meth:`starid.refine.Refinement._refine` for a camera that is not fitted and is an
     ideal pinhole (``M``, ``off``, ``A``, ``c``: ``Camera._ideal_pinhole``): from the
     verified pairs (detections ``det`` → catalogue rows ``cat``) the attitude refitted, the
@@ -1372,9 +1391,11 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
     status 1 refined, 0 keep the verified fit (where the Python code returns it unchanged),
     −1 the cone does not cover an attitude (the caller runs the Python code).
 
-    ``q_fit``: the first round's fit of ``det`` → ``cat`` at ``sigma0`` when the caller has
-    it — :func:`verify_candidate`'s attitude is that fit, the same operations on the same
-    values — or empty (fitted here)."""
+    ``q_fit``, ``res_fit``: the first round's fit of ``det`` → ``cat`` at ``sigma0`` (its
+    attitude and residuals) when the caller has it — :func:`verify_candidate`'s is that
+    fit, the same operations on the same values — or empty (fitted here). The final fit
+    of pairs that settled is the last round's rotation and residuals, with the
+    covariance at the estimated noise (:func:`_final_fit`)."""
     n_xy = xy.shape[0]
     empty_i = np.zeros(0, dtype=np.int64)
     nothing = (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
@@ -1396,9 +1417,9 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
             for j in range(3):
                 r[s, j] = v[cat[s], j]
         if it == 0 and len(q_fit) == 4:
-            q = q_fit
+            q, res_q = q_fit, res_fit
         else:
-            good, q, _, _, _ = _wahba(_to_vectors(xy[det], M, off), r, sigma0 * pix)
+            good, q, _, res_q, _ = _wahba(_to_vectors(xy[det], M, off), r, sigma0 * pix)
             if not good:
                 return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0),
                         0.0, 0)
@@ -1446,6 +1467,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
                 near[d], best[d] = bj, bd
         new_det = np.empty(n_xy, dtype=np.int64)
         new_cat = np.empty(n_xy, dtype=np.int64)
+        dist = np.empty(n_xy)
         nn = 0
         for d in range(n_xy):
             if near[d] < 0:
@@ -1457,15 +1479,15 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
                     own = False
                     break
             if own:
-                new_det[nn], new_cat[nn] = d, pidx[near[d]]
+                # the pair's distance from the star's projection above (the same
+                # function of the same vector, so the same pixels)
+                e = near[d]
+                new_det[nn], new_cat[nn] = d, pidx[e]
+                dist[nn] = math.hypot(xy[d, 0] - pxy[e, 0], xy[d, 1] - pxy[e, 1])
                 nn += 1
         if nn < 3:
             return nothing
-        dist = np.empty(nn)
-        one = np.empty((1, 2))
-        for s in range(nn):
-            _to_pixels(v[new_cat[s]], R, A, c, one, 0)
-            dist[s] = math.hypot(xy[new_det[s], 0] - one[0, 0], xy[new_det[s], 1] - one[0, 1])
+        dist = dist[:nn]
         robust = math.sqrt(_median_of_squares(dist) / (2.0 * math.log(2.0)))
         reject_px = max(reject_sigma * robust, 0.5 * r_min)
         nk = 0
@@ -1482,17 +1504,20 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
                     break
         trunc_px = min(radius_px, reject_px)
         if same:
-            break
+            return _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof,
+                              n_par, det0, rejected, q, res_q)
         det, cat = new_det[:nk].copy(), new_cat[:nk].copy()
     return _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
-                      det0, rejected)
+                      det0, rejected, np.zeros(0), np.zeros(0))
 
 
 @_jit
 def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par, det0,
-               rejected):
+               rejected, q_at, res_at):
     """The end of :func:`refine_pinhole`: the verified fit kept when the pairs walked away
-    from the verified stars (fewer than half of ``det0`` left), else the final fit."""
+    from the verified stars (fewer than half of ``det0`` left), else the final fit —
+    ``q_at``, ``res_at`` the attitude and residuals of these pairs' rotation when known
+    (their fit at another σ: the rotation and residuals do not depend on σ), else empty."""
     empty_i = np.zeros(0, dtype=np.int64)
     k = len(det)
     kept = 0
@@ -1509,15 +1534,19 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
             if not math.isfinite(b[s, j]):
                 return (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0),
                         0.0, 0)
-    r = np.empty((k, 3))
-    for s in range(k):
-        for j in range(3):
-            r[s, j] = v[cat[s], j]
     dof = max(2 * k - n_par, 0)
     s2 = (dof * sigma_px ** 2 + prior_dof * sigma0 ** 2) / (dof + prior_dof)
     nu = dof + prior_dof
     inflate = nu / (nu - 2.0) if nu > 4.0 else 2.0
-    good, q, cov, res, _ = _wahba(b, r, math.sqrt(s2 * inflate) * pix)
+    if len(q_at) == 4:
+        good, cov, _ = _covariance(b, math.sqrt(s2 * inflate) * pix)
+        q, res = q_at, res_at
+    else:
+        r = np.empty((k, 3))
+        for s in range(k):
+            for j in range(3):
+                r[s, j] = v[cat[s], j]
+        good, q, cov, res, _ = _wahba(b, r, math.sqrt(s2 * inflate) * pix)
     if not good:
         return 0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
     return 1, det, cat, q, cov, res, math.sqrt(s2), rejected

@@ -105,13 +105,15 @@ def _candidate(det: list[int], ids: list[int], q: NDArray, cov: NDArray, res: ND
 
 def _refitted(refit: tuple, counter: int, p_false: float, path: str,
               found: list[Candidate], cam: Camera, time_s: float = 0.0, n: int = 0,
-              tried: int = 0) -> Solution:
+              tried: int = 0, matches: list | None = None) -> Solution:
     """The solution of one accepted attitude (its candidate's ``p_false``) refitted in the
     kernel (``refit``: :func:`starid.frame_kernels.unpack`'s, status 1), with the solve's
-    time, detections and trials when they are known."""
+    time, detections and trials when they are known; ``matches``: its pairs' list when the
+    caller has it already (the candidate's, when the refit kept its pairs)."""
     _, d, h, rq, rcov, rres, sigma_px, rejected = refit
     return made(Solution, {
-        "ok": True, "reason": "", "q_cam_icrs": rq, "matches": list(zip(d, h, strict=True)),
+        "ok": True, "reason": "", "q_cam_icrs": rq,
+        "matches": list(zip(d, h, strict=True)) if matches is None else matches,
         "matching_counter": counter, "covariance": rcov, "mode": "lost-in-space",
         "time_s": time_s, "p_false": p_false, "path": path, "candidates": found,
         "residuals_rad": rres, "camera": cam, "n_detections": n, "patterns_tried": tried,
@@ -139,16 +141,22 @@ def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
     f = n_c + 1
     found = []
     for i, k in enumerate(counts):
-        found.append(_candidate(every[o:o + k], every[o + k:o + 2 * k], floats[f:f + 4],
-                                floats[f + 4:f + 13].reshape(3, 3),
+        det, ids = every[o:o + k], every[o + k:o + 2 * k]
+        found.append(_candidate(det, ids, floats[f:f + 4], floats[f + 4:f + 13].reshape(3, 3),
                                 floats[f + 13:f + 13 + k], scalars[i], n_sel, cam, project))
+        if i == best:
+            kept = det, ids
         o += 2 * k
         f += 13 + k
     refit = (1, every[o:o + m], every[o + m:o + 2 * m], floats[f:f + 4],
              floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + m], scalars[n_c],
              rejected)
+    # the refit kept the candidate's pairs (most frames): one list for both, as
+    # dataclasses.replace shares a field's object between a solution and its copy
+    same = refit[1] == kept[0] and refit[2] == kept[1]
     return _refitted(refit, counter, found[best].p_false, paths[pattern], found, cam,
-                     time.perf_counter() - t0, n, tried)
+                     time.perf_counter() - t0, n, tried,
+                     found[best].matches if same else None)
 
 
 def input_bounds(cam: Camera) -> tuple[float, float, float]:

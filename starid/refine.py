@@ -225,7 +225,7 @@ class Refinement:
             float(cam0.width), float(cam0.height), idx, vec, c_axis, float(c_half),
             view_half, cam0.pixel_scale_rad, float(self._match_radius_px()),
             self.centroid_sigma_px, _REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR,
-            float(_PRIOR_DOF), _FIT_HERE)
+            float(_PRIOR_DOF), _FIT_HERE, _FIT_HERE)
         if status < 0:
             return None
         if status == 0:

@@ -146,7 +146,7 @@ def test_hot_repeats_leave_the_first_solves_as_they_were() -> None:
     base = ["--frames", "4", "--conditions", "clean,false3", "--solvers", "ours",
             "--seed", "11", "--no-progress"]
     cold = bench.run_benchmark(bench.config_from_args(p.parse_args(base)))
-    hot = bench.run_benchmark(bench.config_from_args(p.parse_args(base + ["--hot", "2"])))
+    hot = bench.run_benchmark(bench.config_from_args(p.parse_args([*base, "--hot", "2"])))
     assert hot["config"]["hot_repeats"] == 2
     for c0, c1 in zip(cold["conditions"], hot["conditions"], strict=True):
         assert "hot_cpu_time_ms" not in c0
