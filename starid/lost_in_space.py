@@ -382,18 +382,21 @@ class LostInSpace:
             lean = self._lean_state()
             if self.__dict__.get("_lean_changes", 0) == changes:  # (see __setattr__)
                 self.__dict__["_lean"] = lean
-        if lean is False or arr.dtype is not _FLOAT64 or arr.ndim != 2 or arr.shape[1] != 2 \
-                or not arr.flags.c_contiguous:
+        # the types lean_call's wrapper reads its arguments as (it checks none)
+        if lean is False or arr.dtype is not _FLOAT64 or arr.ndim != 2 or arr.shape[1] != 2:
             return None
-        st, paths, cols = lean
+        flags = arr.flags
+        if not (flags.c_contiguous and flags.aligned):
+            return None
+        st, paths, cols, call = lean
         work, walk = getattr(_SCRATCH, "lean", _NO_LEAN)
         try:
-            ints, floats = frame_kernels.solve_lean(st, arr, work, walk)
+            ints, floats = call(st, arr, work, walk)
             # a header alone: refused, or this thread's first lean call (NO_ROOM)
             if len(ints) == frame_kernels.PACKED_HEADER and ints[0] == frame_kernels.NO_ROOM:
                 work, walk = _SCRATCH.lean = (self._scratch(), np.zeros(
                     frame_kernels.LEAN_WALK + cols, dtype=np.int64))
-                ints, floats = frame_kernels.solve_lean(st, arr, work, walk)
+                ints, floats = call(st, arr, work, walk)
         except BaseException:
             self._drop_scratch()
             raise
@@ -425,11 +428,13 @@ class LostInSpace:
         :data:`REST_CHECK_SHARE` of them, and enough left over for a pattern."""
         return n_used < REST_CHECK_SHARE * n and n - n_used >= max(self.n_min, 3)
 
-    def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]], int] | bool:
+    def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]], int,
+                                   Callable] | bool:
         """:meth:`_solve_lean`'s compiled state of this solver's settings, index and camera
         (:func:`starid.frame_kernels.lean_state`), the paths of every detection count's
-        patterns (Renken's, :meth:`_pattern_list`) and the length of the walk's no-match
-        sets, or False where the lean path does not apply (another method, the numpy
+        patterns (Renken's, :meth:`_pattern_list`), the length of the walk's no-match
+        sets and the compiled call (:func:`starid.frame_kernels.lean_call`), or False where
+        the lean path does not apply (another method, the numpy
         matchers, a camera that is no ideal pinhole or is fitted, a focal range). Made on
         the first call and dropped by any assignment to the solver (:meth:`__setattr__`):
         every setting a solve reads is one of its attributes."""
@@ -448,7 +453,8 @@ class LostInSpace:
             self.work_budget, self.max_patterns + 2, 2 * len(self._ix[0]),
             self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
             3 * self.tolerance_rad, _REFIT_CONSTANTS)
-        return st, [paths for _, _, paths in lists], self.max_patterns + 2
+        return (st, [paths for _, _, paths in lists], self.max_patterns + 2,
+                frame_kernels.lean_call(st))
 
     def __setattr__(self, name: str, value) -> None:
         # a setting, the index (the triangles joining it) or the camera changed: the lean

@@ -532,3 +532,26 @@ def test_kept_pair_windows_are_the_fresh_ones() -> None:
             for x, y in zip(fresh, again, strict=True):
                 assert np.array_equal(x, y)
         assert done.sum() > 0.5 * len(b) ** 2  # later patterns did read kept pairs
+
+
+def test_a_read_only_or_unaligned_frame_solves_as_a_writable_one(cat):
+    """Detections in a read-only array (a memory-mapped log, ``np.frombuffer``) take the
+    lean path's compiled call as they are — the same solution, and no other compiled
+    version of the kernel (the dispatcher would compile one for read-only arrays, ~1 min);
+    an unaligned array goes the general way, with the same solution."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    xy, _ = sky_frame(cat, cam, np.random.default_rng(8), n_false=2)
+    xy = np.ascontiguousarray(xy)
+    fresh = solver.solve(xy)
+    assert fresh.ok
+    versions = len(frame_kernels.solve_lean.overloads)
+    ro = xy.copy()
+    ro.flags.writeable = False
+    buf = np.zeros(xy.nbytes + 1, dtype=np.uint8)
+    unaligned = np.frombuffer(buf[1:].data, dtype=np.float64).reshape(xy.shape)
+    unaligned[...] = xy
+    assert not unaligned.flags.aligned
+    for arr in (ro, unaligned):
+        _same(fresh, solver.solve(arr))
+    assert len(frame_kernels.solve_lean.overloads) == versions

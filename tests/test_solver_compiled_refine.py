@@ -67,9 +67,9 @@ def test_an_uncertain_camera_keeps_the_python_refit(cat, monkeypatch):
     monkeypatch.setattr(kernels, "refine_pinhole", lambda *a: calls.append(1) or real(*a))
     monkeypatch.setattr(frame_kernels, "solve_frame_packed",
                         lambda *a: calls.append(a[-2]) or real_frame(*a))  # a[-2]: refine
-    real_lean = frame_kernels.solve_lean  # the lean path's call refits in the kernel
-    monkeypatch.setattr(frame_kernels, "solve_lean",
-                        lambda *a: calls.append(True) or real_lean(*a))
+    real_lean = frame_kernels.lean_call  # the lean path's call refits in the kernel
+    monkeypatch.setattr(frame_kernels, "lean_call", lambda st: (
+        lambda *a: calls.append(True) or real_lean(st)(*a)))
     xy, _ = sky_frame(cat, starid.Camera.pinhole(1024, 768, 15.2), np.random.default_rng(3))
     s = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0), fov_error_deg=0.6,
                       max_patterns=40)
