@@ -251,7 +251,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         # the association's sky map covers the widest guess's match radius (a kernel
         # asked for more ignores it); none for pixels so coarse that it would cover the sky
         sky_rad = self._match_radius_px() * widest.pixel_scale_rad * 1.01
-        self._sky = ((kernels.sky_map(self.vectors, sky_rad), kernels.SKY_CELLS, sky_rad)
+        cells = kernels.SKY_CELLS  # the map is made and read at the same cells per edge
+        self._sky = ((kernels.sky_map(self.vectors, sky_rad, cells), cells, sky_rad)
                      if sky_rad < _SKY_MAP_MAX_RAD else None)
         self._ix = kernels.index_arrays(self.index, None, self._sky)  # triangles: later
         self._cache_tag = tag

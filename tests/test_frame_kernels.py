@@ -555,3 +555,21 @@ def test_a_read_only_or_unaligned_frame_solves_as_a_writable_one(cat):
     for arr in (ro, unaligned):
         _same(fresh, solver.solve(arr))
     assert len(frame_kernels.solve_lean.overloads) == versions
+
+
+def test_a_sky_map_of_other_cells_per_edge_finds_the_same_stars(cat, monkeypatch):
+    """``kernels.SKY_CELLS`` set before a solver is made: its sky map is drawn at those
+    cells per face edge and read at them (the map's default cells were bound when
+    ``sky_map`` was defined, so a map drawn at 1024 was read at 512 and missed stars)."""
+    from adfusion.starid import kernels
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    frames = [np.ascontiguousarray(sky_frame(cat, cam, np.random.default_rng(s), n_false=2)[0])
+              for s in range(6)]
+    want = [starid.Solver(cat, cam).solve(xy) for xy in frames]
+    monkeypatch.setattr(kernels, "SKY_CELLS", 512)
+    solver = starid.Solver(cat, cam)
+    assert solver._sky[1] == 512 and len(solver._sky[0]) < len(kernels.sky_map(
+        solver.vectors, solver._sky[2]))
+    for xy, w in zip(frames, want, strict=True):
+        _same(w, solver.solve(xy))
