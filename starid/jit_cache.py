@@ -65,11 +65,18 @@ _IMPL = getattr(caching, "CacheImpl", None) or caching._CacheImpl
 
 class _DependsLocator(caching._CacheLocator):
     """numba's own locator for the file (cache directory, disambiguator), with
-    :func:`source_stamp` added to its source stamp."""
+    :func:`source_stamp` and the module's import name added to its source stamp.
 
-    def __init__(self, inner: caching._CacheLocator, py_file: str) -> None:
+    The name, because a cached function's environment names its module, and loading it
+    imports that module: the same file imported under another name (``starid.kernels``,
+    as ``pytest --doctest-modules starid/`` imports it beside ``adfusion.starid``) wrote
+    entries that every later ``adfusion`` process loaded and failed on (``No module named
+    'starid'``), until the cache was cleared."""
+
+    def __init__(self, inner: caching._CacheLocator, py_file: str, module: str = "") -> None:
         self._inner = inner
         self._py_file = py_file
+        self._module = module
 
     def ensure_cache_path(self) -> None:
         self._inner.ensure_cache_path()
@@ -78,7 +85,7 @@ class _DependsLocator(caching._CacheLocator):
         return self._inner.get_cache_path()
 
     def get_source_stamp(self):
-        return self._inner.get_source_stamp(), source_stamp(self._py_file)
+        return self._inner.get_source_stamp(), source_stamp(self._py_file), self._module
 
     def get_disambiguator(self) -> str:
         return self._inner.get_disambiguator()
@@ -94,7 +101,7 @@ class _DependsLocator(caching._CacheLocator):
             if other is not cls:
                 inner = other.from_function(py_func, py_file)
                 if inner is not None:
-                    return cls(inner, py_file)
+                    return cls(inner, py_file, py_func.__module__)
         return None
 
 

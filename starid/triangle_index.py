@@ -64,9 +64,16 @@ def max_bytes() -> int:
 
 
 def cell_rad_for(tolerance_rad: float, max_sep_rad: float) -> float:
-    """The cells' width: twice the match tolerance (a pattern's windows then reach into
-    ~2 cells per side), no finer than ``max_sep_rad`` / :data:`CELLS_MAX`."""
-    return max(2.0 * tolerance_rad, max_sep_rad / CELLS_MAX)
+    """The cells' width: the match tolerance (a pattern's windows, two tolerances wide,
+    then reach into ~3 cells per side), no finer than ``max_sep_rad`` / :data:`CELLS_MAX`.
+    Twice the tolerance read ~8× as many triangles a cell: at σ = 2 px (wide windows) a
+    look-up read thousands, and those frames took ~5 % longer in the benchmark; four and
+    six tolerances were slower still (docs/benchmarks.md, "Cold and hot").
+
+    >>> round(cell_rad_for(1e-3, 0.3), 6), round(cell_rad_for(1e-5, 0.3), 6)
+    (0.001, 0.001)
+    """
+    return max(tolerance_rad, max_sep_rad / CELLS_MAX)
 
 
 def estimate_triangles(index: PatternIndex) -> int:

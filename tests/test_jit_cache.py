@@ -34,9 +34,24 @@ def test_the_kernels_are_cached_with_their_dependencies_in_the_stamp():
     for fn in (kernels.search, kernels.quick_checks, frame_kernels.solve_frame_packed):
         locator = fn._cache._impl.locator
         assert isinstance(locator, jit_cache._DependsLocator), fn
-        inner, ours = locator.get_source_stamp()
+        inner, ours, module = locator.get_source_stamp()
         assert inner == locator._inner.get_source_stamp()  # numba's own stamp kept
         assert ours == jit_cache.source_stamp(fn.py_func.__code__.co_filename)
+        assert module == fn.py_func.__module__
+
+
+def test_the_same_file_under_another_import_name_is_cached_apart():
+    """``pytest --doctest-modules starid/`` imports the kernel modules as ``starid.*``
+    beside ``adfusion.starid.*``: their cached functions name that module, and an
+    ``adfusion`` process that loaded them failed on ``No module named 'starid'``. The
+    import name is part of the stamp, so neither loads the other's entries."""
+    py_func = frame_kernels.solve_frame.py_func
+    twin = type(py_func)(py_func.__code__, py_func.__globals__, py_func.__name__)
+    twin.__module__ = "starid.frame_kernels"
+    here = jit_cache._DependsLocator.from_function(py_func, py_func.__code__.co_filename)
+    there = jit_cache._DependsLocator.from_function(twin, py_func.__code__.co_filename)
+    assert here.get_cache_path() == there.get_cache_path()
+    assert here.get_source_stamp() != there.get_source_stamp()
 
 
 def test_every_module_a_kernel_module_imports_is_in_its_stamp():
