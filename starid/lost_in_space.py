@@ -148,15 +148,18 @@ def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
             kept = det, ids
         o += 2 * k
         f += 13 + k
-    refit = (1, every[o:o + m], every[o + m:o + 2 * m], floats[f:f + 4],
-             floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + m], scalars[n_c],
-             rejected)
-    # the refit kept the candidate's pairs (most frames): one list for both, as
-    # dataclasses.replace shares a field's object between a solution and its copy
-    same = refit[1] == kept[0] and refit[2] == kept[1]
-    return _refitted(refit, counter, found[best].p_false, paths[pattern], found, cam,
-                     time.perf_counter() - t0, n, tried,
-                     found[best].matches if same else None)
+    d, h = every[o:o + m], every[o + m:o + 2 * m]
+    cand = found[best]
+    if d == kept[0] and h == kept[1]:
+        # the refit kept the candidate's pairs (most frames): the same pairs' fit, so the
+        # same attitude and residuals to the bit (kernels.refine_pinhole); one object for
+        # both, as dataclasses.replace shares a field's object between two solutions
+        q, res, matches = cand.q_cam_icrs, cand.residuals_rad, cand.matches
+    else:
+        q, res, matches = floats[f:f + 4], floats[f + 13:f + 13 + m], None
+    refit = (1, d, h, q, floats[f + 4:f + 13].reshape(3, 3), res, scalars[n_c], rejected)
+    return _refitted(refit, counter, cand.p_false, paths[pattern], found, cam,
+                     time.perf_counter() - t0, n, tried, matches)
 
 
 def input_bounds(cam: Camera) -> tuple[float, float, float]:
