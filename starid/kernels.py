@@ -41,7 +41,9 @@ from adfusion.starid.index import REUSE_DRIFT_RAD
 from adfusion.starid.jit_cache import njit_cached
 from adfusion.starid.triangle_index import QUANTA, _cell, _sorted3
 from adfusion.starid.verify import DENSITY_SAFETY
+from llvmlite import ir
 from numba import types
+from numba.core.extending import intrinsic
 from numba.typed import Dict
 
 __all__ = ["SEARCH_START", "SKY_CELLS", "binomial_tail", "index_arrays", "match",
@@ -414,6 +416,27 @@ def _near_tie(cur, keys, k, gap):
     return False
 
 
+@intrinsic
+def _prefetch(typingctx, arr, i):
+    """A hint to the CPU to fetch ``arr[i]`` (a 1-D or 2-D array's flat element ``i``)
+    into the caches now (``llvm.prefetch``: read, keep, data); nothing else happens."""
+    if not isinstance(arr, types.Array):
+        return None
+
+    def codegen(context, builder, signature, args):
+        aryty, idxty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = context.cast(builder, args[1], idxty, types.intp)
+        ptr = builder.bitcast(builder.gep(ary.data, [idx]), ir.IntType(8).as_pointer())
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32])
+        fn = builder.module.declare_intrinsic("llvm.prefetch", [ptr.type], fnty)
+        builder.call(fn, [ptr, i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return types.none(arr, i), codegen
+
+
 @_jit
 def _triangles_looked_up(ix, cmin, cmax, chirality):
     """:func:`_triangles`'s rows (K, 3) from the triangle table: every stored triangle in
@@ -438,6 +461,22 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
     cur = np.empty((16, 3), dtype=np.int64)
     keys = np.empty((16, 7))
     k = 0
+    # the cells come in runs of consecutive c1 (one per c2, c3), each a stretch of the
+    # cell and triangle tables; first every run's bounds and its first rows asked for at
+    # once — in cold caches each is a cache miss, and read one after the other (as the
+    # scan below reaches them) they were most of a look-up's time
+    n_runs = 0
+    runs = np.empty((max(b3 - a3 + 1, 0) * max(b2 - a2 + 1, 0), 2), dtype=np.int64)
+    for c3 in range(a3, b3 + 1):
+        for c2 in range(a2, min(b2, c3) + 1):
+            e1 = min(b1, c2)
+            if e1 >= a1:
+                lo_t, hi_t = offs[_cell(a1, c2, c3)], offs[_cell(e1, c2, c3) + 1]
+                runs[n_runs, 0], runs[n_runs, 1] = lo_t, hi_t
+                n_runs += 1
+    for r in range(n_runs):
+        for t in range(runs[r, 0], runs[r, 1], 8):  # 8 rows of 8 bytes: a cache line
+            _prefetch(tri, 4 * t)
     for c3 in range(a3, b3 + 1):
         m3, n3 = _quanta_in(lo3 / h, hi3 / h, c3, n)
         for c2 in range(a2, min(b2, c3) + 1):
