@@ -40,6 +40,7 @@ from adfusion.starid.kernels import (
     STRONG,
     _jit,
     _matrix_of,
+    _no_fit,
     _to_vectors,
     _window,
     chirality,
@@ -196,8 +197,6 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
     sigma = sigma0_px * pix
     wp_all = np.empty(0)
     wi_all = np.empty((0, 20), dtype=np.int64)
-    empty_i = np.zeros(0, dtype=np.int64)
-    no_refit = (-2, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
     store = triangle_store()  # kept across the walk's calls (a verification failed)
     while True:
         sel, rows, q, wp, wi = search(ix, state, pats, plen, budget, no_match, n_no_match,
@@ -207,10 +206,11 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
             wp_all = np.concatenate((wp_all, wp))
             wi_all = np.concatenate((wi_all, wi))
         if state[4] != STRONG:
+            empty_i = np.zeros(0, dtype=np.int64)
             cands = (empty_i, np.zeros((0, n_xy), dtype=np.int64),
                      np.zeros((0, n_xy), dtype=np.int64), np.zeros((0, 4)),
                      np.zeros((0, 3, 3)), np.zeros((0, n_xy)), np.zeros(0))
-            return NONE, sel, 0, cands, empty_i, 0, no_refit, (wp_all, wi_all)
+            return NONE, sel, 0, cands, empty_i, 0, _no_fit(-2), (wp_all, wi_all)
         ok, pq, rots, e_tr, det, cat, matched = q
         n_k = len(rows)
         c_n, c_det, c_cat, c_q, c_cov, c_res, c_p = _candidate_arrays(n_k, n_xy)
@@ -238,7 +238,8 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
         # kept when farther than distinct_rad from every one kept before
         order = np.empty(nc, dtype=np.int64)
         n_acc = 0
-        by_p = np.argsort(c_p[:nc], kind="mergesort")
+        # (one candidate, most trials: no sort to run)
+        by_p = np.argsort(c_p[:nc], kind="mergesort") if nc > 1 else np.zeros(nc, np.int64)
         for t in range(nc):
             i = by_p[t]
             if not c_p[i] <= p_false_max:
@@ -255,7 +256,7 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
                  c_p[:nc])
         if n_acc == 1:
             i = order[0]
-            refit = no_refit
+            refit = _no_fit(-2)
             m = c_n[i]
             if refine and m >= 3:
                 refit = _refit(ix, c_q[i], c_res[i, :m], rows[c_row[i], 0], xy_all, ok_all,
@@ -265,7 +266,8 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
                     refit = _by_detection(refit)
             return ACCEPTED, sel, n_k, cands, order[:1], 1, refit, (wp_all, wi_all)
         if n_acc > 1:
-            return SEVERAL, sel, n_k, cands, order[:n_acc], n_acc, no_refit, (wp_all, wi_all)
+            return (SEVERAL, sel, n_k, cands, order[:n_acc], n_acc, _no_fit(-2),
+                    (wp_all, wi_all))
         # nothing accepted at this trial: on to the next one
         state[0], state[1] = state[0] + 1, 0
 
@@ -456,10 +458,15 @@ def verify_weak(ix, xy, M, off, tolerance_rad, rows, r_min_px, sigma0_px, pix):
 @_jit
 def _by_detection(refit):
     """A refit's pairs and residuals sorted by detection (``np.argsort``, as
-    ``Refinement._refine_pinhole`` sorts them)."""
+    ``Refinement._refine_pinhole`` sorts them) — as they are when they come so already,
+    which the refit's association and the verification's make them (a detection pairs
+    once, so the order is strict and the sort would be the identity)."""
     status, d, k, q, cov, res, sigma_px, rejected = refit
-    o = np.argsort(d)
-    return status, d[o], k[o], q, cov, res[o], sigma_px, rejected
+    for i in range(1, len(d)):
+        if d[i] <= d[i - 1]:
+            o = np.argsort(d)
+            return status, d[o], k[o], q, cov, res[o], sigma_px, rejected
+    return refit
 
 
 @_jit

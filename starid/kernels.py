@@ -1414,6 +1414,19 @@ def _median_of_squares(d):
 
 
 @_jit
+def _no_fit(status):
+    """A refit's result without a fit (:func:`refine_pinhole`'s tuple: ``status``, no
+    pairs, zero attitude and covariance), made where it is returned: made up front, its
+    four arrays were allocated on every call that then fitted.
+
+    >>> _no_fit(-1)[0], len(_no_fit(0)[1])
+    (-1, 0)
+    """
+    empty_i = np.zeros(0, dtype=np.int64)
+    return status, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
+
+
+@_jit
 def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx, cone_vec,
                    cone_axis, cone_half, view_half, pix, r_min, sigma0, reject_sigma,
                    radius_sigma, radius_max_factor, prior_dof, q_fit, res_fit):
@@ -1436,8 +1449,6 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
     of pairs that settled is the last round's rotation and residuals, with the
     covariance at the estimated noise (:func:`_final_fit`)."""
     n_xy = xy.shape[0]
-    empty_i = np.zeros(0, dtype=np.int64)
-    nothing = (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0)
     det0 = det
     trunc_px = r_min
     sigma_px = sigma0
@@ -1450,7 +1461,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
     for it in range(8):
         k = len(det)
         if k < 3:
-            return nothing
+            return _no_fit(0)
         r = np.empty((k, 3))
         for s in range(k):
             for j in range(3):
@@ -1460,8 +1471,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
         else:
             good, q, _, res_q, _ = _wahba(_to_vectors(xy[det], M, off), r, sigma0 * pix)
             if not good:
-                return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0),
-                        0.0, 0)
+                return _no_fit(-1)
         R = _matrix_of(q)
         res = np.empty((k, 2))
         for s in range(k):
@@ -1476,8 +1486,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
         # the stars in the frame (Solver._predict): from the cached cone while it covers
         if R[2, 0] * cone_axis[0] + R[2, 1] * cone_axis[1] + R[2, 2] * cone_axis[2] \
                 < spare_cos:
-            return (-1, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0,
-                    0)
+            return _no_fit(-1)
         m = len(cone_idx)
         pxy = np.empty((m, 2))
         pidx = np.empty(m, dtype=np.int64)
@@ -1490,7 +1499,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
                 n_in += 1
         # every detection's nearest star within the radius, one-to-one (refine._associate_px)
         if n_in == 0:
-            return nothing
+            return _no_fit(0)
         r2 = radius_px * radius_px
         for d in range(n_xy):
             near[d], best[d] = -1, np.inf
@@ -1525,7 +1534,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
                 dist[nn] = math.hypot(xy[d, 0] - pxy[e, 0], xy[d, 1] - pxy[e, 1])
                 nn += 1
         if nn < 3:
-            return nothing
+            return _no_fit(0)
         dist = dist[:nn]
         robust = math.sqrt(_median_of_squares(dist) / (2.0 * math.log(2.0)))
         reject_px = max(reject_sigma * robust, 0.5 * r_min)
@@ -1557,7 +1566,6 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
     from the verified stars (fewer than half of ``det0`` left), else the final fit —
     ``q_at``, ``res_at`` the attitude and residuals of these pairs' rotation when known
     (their fit at another σ: the rotation and residuals do not depend on σ), else empty."""
-    empty_i = np.zeros(0, dtype=np.int64)
     k = len(det)
     kept = 0
     for s in range(k):
@@ -1566,13 +1574,12 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
                 kept += 1
                 break
     if kept < 0.5 * len(det0) or k < 3:
-        return 0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
+        return _no_fit(0)
     b = _to_vectors(xy[det], M, off)
     for s in range(k):
         for j in range(3):
             if not math.isfinite(b[s, j]):
-                return (0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0),
-                        0.0, 0)
+                return _no_fit(0)
     dof = max(2 * k - n_par, 0)
     s2 = (dof * sigma_px ** 2 + prior_dof * sigma0 ** 2) / (dof + prior_dof)
     nu = dof + prior_dof
@@ -1587,7 +1594,7 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
                 r[s, j] = v[cat[s], j]
         good, q, cov, res, _ = _wahba(b, r, math.sqrt(s2 * inflate) * pix)
     if not good:
-        return 0, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 0.0, 0
+        return _no_fit(0)
     return 1, det, cat, q, cov, res, math.sqrt(s2), rejected
 
 
@@ -1625,6 +1632,14 @@ if __name__ == "__main__":
 
 
 @_jit
+def _not_verified():
+    """:func:`verify_candidate`'s result for a candidate that fails, made where it is
+    returned (made up front, its arrays were allocated for every candidate)."""
+    empty_i = np.zeros(0, dtype=np.int64)
+    return False, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 1.0
+
+
+@_jit
 def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius, sigma):
     """:meth:`starid.verify.Verification._verify` for a known camera: the attitude refitted
     on the quick check's pairs (``det`` → ``cat``, at rotation ``R``), every detection
@@ -1636,8 +1651,6 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
     v, nbr_ptr, max_sep = ix[0], ix[4], ix[8]
     nbr_idx, nbr_bin, sky, m_sky, sky_rad = ix[5], ix[7], ix[14], ix[15], ix[16]
     n = len(sel)
-    empty_i = np.zeros(0, dtype=np.int64)
-    fail = (False, empty_i, empty_i, np.zeros(4), np.zeros((3, 3)), np.zeros(0), 1.0)
     k = len(det)
     b = np.empty((k, 3))
     r = np.empty((k, 3))
@@ -1646,7 +1659,7 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
             b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
     R2, proper = _rotation(b, r)
     if not proper:
-        return fail
+        return _not_verified()
     tr = 0.0
     for i in range(3):
         for j in range(3):
@@ -1689,20 +1702,20 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
                     found = cat[e] == assign[s]
                     break
             if not found:
-                return fail
+                return _not_verified()
         b = np.empty((k, 3))
         r = np.empty((k, 3))
         for s in range(k):
             for j in range(3):
                 b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
     if k < 2:
-        return fail
+        return _not_verified()
     if again:
         good, q, cov, res, loss = _wahba(b, r, sigma)
     else:  # the same pairs: R2 is their rotation
         good, q, cov, res, loss = _wahba_at(b, r, sigma, R2, proper)
     if not good:
-        return fail
+        return _not_verified()
     dof = 2 * k - 3
     vf = max(1.0, loss / dof) if dof > 0 else 1.0
     for i in range(3):
