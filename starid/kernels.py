@@ -1240,14 +1240,30 @@ def _to_vectors(xy, M, off):
     n = xy.shape[0]
     v = np.empty((n, 3))
     for i in range(n):
-        s = 0.0
-        for j in range(3):
-            v[i, j] = xy[i, 0] * M[0, j] + xy[i, 1] * M[1, j] + off[j]
-            s += v[i, j] * v[i, j]
-        s = math.sqrt(s)
-        for j in range(3):
-            v[i, j] /= s
+        _pixel_direction(xy[i, 0], xy[i, 1], M, off, v, i)
     return v
+
+
+@_jit
+def _to_vectors_of(xy, rows, M, off):
+    """:func:`_to_vectors` of ``xy[rows]``, without the copy of those rows."""
+    n = len(rows)
+    v = np.empty((n, 3))
+    for i in range(n):
+        _pixel_direction(xy[rows[i], 0], xy[rows[i], 1], M, off, v, i)
+    return v
+
+
+@_jit_inline
+def _pixel_direction(x, y, M, off, v, i):
+    """The unit direction of pixel (x, y) into ``v[i]`` (the one formula of both)."""
+    s = 0.0
+    for j in range(3):
+        v[i, j] = x * M[0, j] + y * M[1, j] + off[j]
+        s += v[i, j] * v[i, j]
+    s = math.sqrt(s)
+    for j in range(3):
+        v[i, j] /= s
 
 
 @_jit
@@ -1469,7 +1485,7 @@ def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx
         if it == 0 and len(q_fit) == 4:
             q, res_q = q_fit, res_fit
         else:
-            good, q, _, res_q, _ = _wahba(_to_vectors(xy[det], M, off), r, sigma0 * pix)
+            good, q, _, res_q, _ = _wahba(_to_vectors_of(xy, det, M, off), r, sigma0 * pix)
             if not good:
                 return _no_fit(-1)
         R = _matrix_of(q)
@@ -1575,7 +1591,7 @@ def _final_fit(xy, det, cat, v, M, off, pix, sigma_px, sigma0, prior_dof, n_par,
                 break
     if kept < 0.5 * len(det0) or k < 3:
         return _no_fit(0)
-    b = _to_vectors(xy[det], M, off)
+    b = _to_vectors_of(xy, det, M, off)
     for s in range(k):
         for j in range(3):
             if not math.isfinite(b[s, j]):
