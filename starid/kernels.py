@@ -560,14 +560,13 @@ def _extended(ix, cur, cmin, cmax, max_partials):
     v, nbr_idx, nbr_cos, nbr_bin, max_sep = ix[0], ix[5], ix[6], ix[7], ix[8]
     n = cmin.shape[0]
     k = len(cur)
-    empty = np.zeros((0, n), dtype=np.int64)
     nb = nbr_bin.shape[1] - 1
     step = max_sep / nb
     for m in range(3, n):  # further stars: the first star's neighbour row
         if k == 0:
-            return empty, 0, 0
+            return np.zeros((0, n), dtype=np.int64), 0, 0
         if k > max_partials:
-            return empty, k, m
+            return np.zeros((0, n), dtype=np.int64), k, m
         b0 = min(max(int(math.acos(cmax[0, m]) / step), 0), nb)
         b1 = min(max(int(math.acos(cmin[0, m]) / step) + 1, 0), nb)
         nxt = np.empty((max(16, 2 * k), n), dtype=np.int64)
@@ -595,7 +594,7 @@ def _extended(ix, cur, cmin, cmax, max_partials):
                     kn += 1
         cur, k = nxt, kn
     if k > max_partials:  # the last level too: bounded memory for the quick checks
-        return empty, k, n
+        return np.zeros((0, n), dtype=np.int64), k, n
     return _grown(cur, k)[:k], 0, 0
 
 
@@ -1092,7 +1091,8 @@ def pattern_windows_kept(pat, b_all, tolerance_rad, rel_tol, kept, done):
                 kept[0, y, x], kept[1, y, x], kept[2, y, x], kept[3, y, x] = a, t, lo, hi
                 done[x, y] = done[y, x] = True
     sel = _closest_pair_first(kept[0], pat)
-    a, t, lo, hi = np.empty((n, n)), np.empty((n, n)), np.empty((n, n)), np.empty((n, n))
+    w = np.empty((4, n, n))  # one block: angles, half-widths, cosine bounds
+    a, t, lo, hi = w[0], w[1], w[2], w[3]
     bs = np.empty((n, 3))
     t_max = -np.inf
     for i in range(n):
