@@ -638,7 +638,8 @@ def _spot_geometry(a):
     n = a.shape[0]
     st = np.zeros((max(n - 2, 0), 2), dtype=np.int64)
     sg = np.zeros(max(n - 2, 0))
-    ca, sa = np.empty((n, n)), np.empty((n, n))
+    trig = np.empty((2, n, n))
+    ca, sa = trig[0], trig[1]
     for s in range(n):
         for t in range(s + 1, n):
             ca[s, t], sa[s, t] = math.cos(a[s, t]), math.sin(a[s, t])
@@ -821,13 +822,15 @@ def _rotation(b, vc):
     """Least-squares rotation (cam ← icrs) of matched directions, as
     ``starid.solver._rotation_from_pairs`` (SVD of B = Σ b cᵀ, reflection excluded);
     (R, proper) — proper False if collinear. The 3×3 SVD is one-sided Jacobi (columns
-    of B orthogonalised by plane rotations): no LAPACK call per candidate."""
-    A = np.zeros((3, 3))
+    of B orthogonalised by plane rotations): no LAPACK call per candidate. B, the
+    rotations V and R share one allocation (a frame makes a dozen of these, and in cold
+    caches each allocation costs)."""
+    blk = np.zeros((3, 3, 3))
+    A, V, R = blk[0], blk[1], blk[2]
     for s in range(b.shape[0]):
         for i in range(3):
             for j in range(3):
                 A[i, j] += b[s, i] * vc[s, j]
-    V = np.zeros((3, 3))
     V[0, 0] = V[1, 1] = V[2, 2] = 1.0
     for _ in range(30):
         done = True
@@ -862,7 +865,6 @@ def _rotation(b, vc):
         i0, i1 = (2, 0) if s0 >= s1 else (2, 1)
     sa = max(s0, s1, s2)
     sb = s1 if i1 == 1 else (s0 if i1 == 0 else s2)
-    R = np.zeros((3, 3))
     if sb < 1e-12 * max(sa, 1e-300):
         return R, False
     # R = U diag(1, 1, det U · det V) Vᵀ: the third singular pair is the cross products
@@ -898,26 +900,28 @@ def quick_checks(ix, b_all, sel, assigns, angles, tol, mirror_checked, trials, r
     n_k, n = assigns.shape
     n_det = len(b_all)
     n_cat = len(v)
+    # arrays of one type share an allocation (each costs, in cold caches)
     ok = np.zeros(n_k, dtype=np.bool_)
-    pf = np.zeros(n_k)
+    floats = np.zeros((2, n_k))
+    pf, e_tr = floats[0], floats[1]
     rots = np.zeros((n_k, 3, 3))
-    e_tr = np.zeros(n_k)
-    det = np.zeros((n_k, n_det), dtype=np.int64)
-    cat = np.zeros((n_k, n_det), dtype=np.int64)
+    pairs = np.zeros((2, n_k, n_det), dtype=np.int64)
+    det, cat = pairs[0], pairs[1]
     matched = np.zeros(n_k, dtype=np.int64)
     bound = 2 * math.sin(radius / 2)
     bound2 = bound * bound
     st, sg = _spot_geometry(angles)
-    bs = np.empty((n, 3))
-    vc = np.empty((n, 3))
+    dirs = np.empty((2, n, 3))
+    bs, vc = dirs[0], dirs[1]
     for s in range(n):
         for j in range(3):
             bs[s, j] = b_all[sel[s], j]
-    tgt = np.empty(n_det, dtype=np.int64)
-    own = np.empty(n_det, dtype=np.int64)
-    dist = np.empty(n_det)
-    r = np.empty(3)
-    w = np.zeros((n, n))
+    ints = np.empty((2, n_det), dtype=np.int64)
+    tgt, own = ints[0], ints[1]
+    scratch = np.empty(n_det + 3 + n * n)
+    dist, r, w = scratch[:n_det], scratch[n_det:n_det + 3], \
+        scratch[n_det + 3:].reshape((n, n))
+    w[:, :] = 0.0
     area = 2 * np.pi * (1 - math.cos(max_sep))
     in_pattern = np.zeros(n_det, dtype=np.bool_)
     for s in range(n):
