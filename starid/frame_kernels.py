@@ -124,10 +124,15 @@ def _cone(ix, axis, half_rad, anchor, theta):
 @_jit
 def _candidate_arrays(n_k, n_xy):
     """Room for ``n_k`` verified candidates of ``n_xy`` detections: pair counts,
-    detections, catalogue rows, q, covariance, residuals, p_false (all zero)."""
-    return (np.zeros(n_k, dtype=np.int64), np.zeros((n_k, n_xy), dtype=np.int64),
-            np.zeros((n_k, n_xy), dtype=np.int64), np.zeros((n_k, 4)),
-            np.zeros((n_k, 3, 3)), np.zeros((n_k, n_xy)), np.zeros(n_k))
+    detections, catalogue rows, q, covariance, residuals, p_false (all zero) — views of
+    one integer and one float allocation."""
+    ints = np.zeros(n_k * (1 + 2 * n_xy), dtype=np.int64)
+    floats = np.zeros(n_k * (4 + 9 + n_xy + 1))
+    a, b = n_k, n_k + n_k * n_xy
+    c, d, e = 4 * n_k, 13 * n_k, 13 * n_k + n_k * n_xy
+    return (ints[:a], ints[a:b].reshape((n_k, n_xy)), ints[b:].reshape((n_k, n_xy)),
+            floats[:c].reshape((n_k, 4)), floats[c:d].reshape((n_k, 3, 3)),
+            floats[d:e].reshape((n_k, n_xy)), floats[e:])
 
 
 @_jit
@@ -138,9 +143,7 @@ def _refit(ix, q, res, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, he
     neighbour row, or every star when the refit leaves that cone."""
     v = ix[0]
     R = _matrix_of(q)
-    axis = np.empty(3)
-    for j in range(3):
-        axis[j] = R[2, j]
+    axis = R[2]  # the boresight (R's third row, a view)
     cth = min(max(v[anchor, 0] * axis[0] + v[anchor, 1] * axis[1] + v[anchor, 2] * axis[2],
                   -1.0), 1.0)
     theta = math.acos(cth)
@@ -192,8 +195,8 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
         ok_all[i] = math.isfinite(x) and math.isfinite(y) and (
             i < n_xy or (x >= -0.5 and y >= -0.5 and x <= width - 0.5
                          and y <= height - 0.5))
-    radius = np.array([r_min_px * pix])
-    floor = np.array([math.sqrt(2.0) * sigma0_px * pix])
+    per_guess = np.array([[r_min_px * pix], [math.sqrt(2.0) * sigma0_px * pix]])
+    radius, floor = per_guess[0], per_guess[1]  # (one guess)
     sigma = sigma0_px * pix
     wp_all = np.empty(0)
     wi_all = np.empty((0, 20), dtype=np.int64)
