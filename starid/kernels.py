@@ -1358,14 +1358,19 @@ def _covariance(b, sigma):
     n = b.shape[0]
     cov = np.zeros((3, 3))
     wres = 1.0 / sigma ** 2
-    S = np.zeros((3, 3))
+    # Σ b bᵀ: the six sums it needs, each in the order of the rows
+    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
     for s in range(n):
-        for i in range(3):
-            for j in range(3):
-                S[i, j] += b[s, i] * b[s, j]
+        x, y, z = b[s, 0], b[s, 1], b[s, 2]
+        s00 += x * x
+        s01 += x * y
+        s02 += x * z
+        s11 += y * y
+        s12 += y * z
+        s22 += z * z
     w_sum = float(n)
-    f00, f01, f02 = wres * (w_sum - S[0, 0]), -wres * S[0, 1], -wres * S[0, 2]
-    f11, f12, f22 = wres * (w_sum - S[1, 1]), -wres * S[1, 2], wres * (w_sum - S[2, 2])
+    f00, f01, f02 = wres * (w_sum - s00), -wres * s01, -wres * s02
+    f11, f12, f22 = wres * (w_sum - s11), -wres * s12, wres * (w_sum - s22)
     c00 = f11 * f22 - f12 * f12
     c01 = f02 * f12 - f01 * f22
     c02 = f01 * f12 - f02 * f11
@@ -1672,8 +1677,8 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
     nbr_idx, nbr_bin, sky, m_sky, sky_rad = ix[5], ix[7], ix[14], ix[15], ix[16]
     n = len(sel)
     k = len(det)
-    b = np.empty((k, 3))
-    r = np.empty((k, 3))
+    br = np.empty((2, k, 3))  # the pairs' directions, camera and catalogue
+    b, r = br[0], br[1]
     for s in range(k):
         for j in range(3):
             b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
@@ -1723,8 +1728,8 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
                     break
             if not found:
                 return _not_verified()
-        b = np.empty((k, 3))
-        r = np.empty((k, 3))
+        br = np.empty((2, k, 3))
+        b, r = br[0], br[1]
         for s in range(k):
             for j in range(3):
                 b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
