@@ -3,8 +3,8 @@ compiles in — not only its own file.
 
 Why: numba keys a cached function by its own source file. A kernel that calls kernels of
 another module (:mod:`starid.frame_kernels` calls :mod:`starid.kernels`, which calls
-:mod:`starid.triangle_index` and reads constants of :mod:`starid.index` and
-:mod:`starid.verify`) has their code compiled into its own; when only the other module
+:mod:`starid.triangle_index` and :mod:`starid.tracking_kernels` and reads constants of
+:mod:`starid.index` and :mod:`starid.verify`) has their code compiled into its own; when only the other module
 changes — an upgrade, a ``git pull`` — numba still loads the old compiled code and runs it
 with the new Python around it. That happened here: the sky map's layout changed in
 ``kernels.py``, the cached ``frame_kernels`` kept reading the old one, and every frame of
@@ -38,9 +38,10 @@ __all__ = ["DEPENDS", "njit_cached", "source_stamp"]
 #: the modules (files beside it) each kernel module compiles in, itself first; a module
 #: not named here is keyed by its own file, as numba does
 DEPENDS: dict[str, tuple[str, ...]] = {
-    "kernels.py": ("kernels.py", "triangle_index.py", "index.py", "verify.py"),
+    "kernels.py": ("kernels.py", "triangle_index.py", "index.py", "verify.py",
+                   "tracking_kernels.py"),
     "frame_kernels.py": ("frame_kernels.py", "kernels.py", "triangle_index.py", "index.py",
-                         "verify.py"),
+                         "verify.py", "tracking_kernels.py"),
 }
 
 

@@ -39,6 +39,7 @@ import math
 import numpy as np
 from adfusion.starid.index import REUSE_DRIFT_RAD
 from adfusion.starid.jit_cache import njit_cached
+from adfusion.starid.tracking_kernels import _inverse_information
 from adfusion.starid.triangle_index import QUANTA, _cell, _sorted3
 from adfusion.starid.verify import DENSITY_SAFETY
 from llvmlite import ir
@@ -1353,36 +1354,14 @@ def _wahba_at(b, r, sigma, R, proper):
 @_jit
 def _covariance(b, sigma):
     """The attitude covariance of :func:`_wahba` for directions ``b`` at centroid
-    ``sigma`` (rad) — it depends on neither the catalogue directions nor the rotation:
-    (ok, covariance, 1/σ²); ok False where the information matrix is singular."""
-    n = b.shape[0]
-    cov = np.zeros((3, 3))
+    ``sigma`` (rad) — it depends on neither the catalogue directions nor the rotation —
+    by the tracking path's one formula (:func:`starid.tracking_kernels._inverse_information`):
+    (ok, covariance, 1/σ²); ok False (and zeros) where the information matrix is
+    singular."""
     wres = 1.0 / sigma ** 2
-    # Σ b bᵀ: the six sums it needs, each in the order of the rows
-    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
-    for s in range(n):
-        x, y, z = b[s, 0], b[s, 1], b[s, 2]
-        s00 += x * x
-        s01 += x * y
-        s02 += x * z
-        s11 += y * y
-        s12 += y * z
-        s22 += z * z
-    w_sum = float(n)
-    f00, f01, f02 = wres * (w_sum - s00), -wres * s01, -wres * s02
-    f11, f12, f22 = wres * (w_sum - s11), -wres * s12, wres * (w_sum - s22)
-    c00 = f11 * f22 - f12 * f12
-    c01 = f02 * f12 - f01 * f22
-    c02 = f01 * f12 - f02 * f11
-    det = f00 * c00 + f01 * c01 + f02 * c02
-    if not det > 1e-12 * (f00 + f11 + f22) ** 3:
-        return False, cov, wres
-    k = 1.0 / det
-    cov[0, 0], cov[0, 1], cov[0, 2] = c00 * k, c01 * k, c02 * k
-    cov[1, 1] = (f00 * f22 - f02 * f02) * k
-    cov[1, 2] = (f01 * f02 - f00 * f12) * k
-    cov[2, 2] = (f00 * f11 - f01 * f01) * k
-    cov[1, 0], cov[2, 0], cov[2, 1] = cov[0, 1], cov[0, 2], cov[1, 2]
+    good, cov = _inverse_information(b, wres)
+    if not good:
+        return False, np.zeros((3, 3)), wres
     return True, cov, wres
 
 
