@@ -4,8 +4,9 @@ compiles in — not only its own file.
 Why: numba keys a cached function by its own source file. A kernel that calls kernels of
 another module (:mod:`starid.frame_kernels` calls :mod:`starid.kernels`, which calls
 :mod:`starid.triangle_index` and :mod:`starid.tracking_kernels` and reads constants of
-:mod:`starid.index` and :mod:`starid.verify`) has their code compiled into its own; when only the other module
-changes — an upgrade, a ``git pull`` — numba still loads the old compiled code and runs it
+:mod:`starid.index` and :mod:`starid.verify`) has their code compiled into its own;
+when only the other module changes — an upgrade, a ``git pull`` — numba still loads the
+old compiled code and runs it
 with the new Python around it. That happened here: the sky map's layout changed in
 ``kernels.py``, the cached ``frame_kernels`` kept reading the old one, and every frame of
 noise lost its weak candidates. :func:`njit_cached` adds the contents of those modules
