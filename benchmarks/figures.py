@@ -339,9 +339,10 @@ def starid_section(doc: dict[str, Any], command: str,
         before = None  # ratios from another machine do not compare
     label = f"`{_commit(before)}`" if before and _commit(before) else "an earlier run"
     load = doc["machine"].get("loadavg")
-    hot = doc["config"].get("hot_repeats", 0) > 0 and bool(peers)
-    if doc["config"].get("hot_repeats", 0) > 0 and "--hot" not in command:
-        command += f" --hot {doc['config']['hot_repeats']}"
+    repeats = doc["config"].get("hot_repeats", 0)
+    hot = repeats > 0 and bool(peers)
+    if repeats > 0 and "--hot" not in command:
+        command += f" --hot {repeats}"
     lines = [
         "### Lost-in-space against the peers, interleaved",
         "",
@@ -384,7 +385,7 @@ def starid_section(doc: dict[str, Any], command: str,
                        if rh and "ours" in h and peers[0] in h else "—")
         lines.append("| " + " | ".join(row) + " |")
     if hot:
-        lines += ["", f"Hot: each frame solved {doc['config']['hot_repeats']} more times by "
+        lines += ["", f"Hot: each frame solved {repeats} more times by "
                   "each solver right after the first solves, the last one's CPU time (the "
                   "solver's code and data in the caches); the other columns are each "
                   "frame's first solve."]

@@ -259,7 +259,6 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
                  c_p[:nc])
         if n_acc == 1:
             i = order[0]
-            refit = _no_fit(-2)
             m = c_n[i]
             if refine and m >= 3:
                 refit = _refit(ix, c_q[i], c_res[i, :m], rows[c_row[i], 0], xy_all, ok_all,
@@ -267,6 +266,8 @@ def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
                                view_half, pix, r_min_px, sigma0_px, consts)
                 if refit[0] == 1:
                     refit = _by_detection(refit)
+            else:
+                refit = _no_fit(-2)
             return ACCEPTED, sel, n_k, cands, order[:1], 1, refit, (wp_all, wi_all)
         if n_acc > 1:
             return (SEVERAL, sel, n_k, cands, order[:n_acc], n_acc, _no_fit(-2),

@@ -1635,6 +1635,18 @@ if __name__ == "__main__":
 # --- the full verification of a candidate (starid.verify.Verification._verify) ---------
 
 
+@_jit_inline
+def _pair_directions(b_all, v, det, cat):
+    """The directions of pairs ``det`` → ``cat``: the detections' (camera) and the
+    catalogue stars' (ICRS), (k, 3) each, in one allocation."""
+    k = len(det)
+    br = np.empty((2, k, 3))
+    for s in range(k):
+        for j in range(3):
+            br[0, s, j], br[1, s, j] = b_all[det[s], j], v[cat[s], j]
+    return br[0], br[1]
+
+
 @_jit
 def _not_verified():
     """:func:`verify_candidate`'s result for a candidate that fails, made where it is
@@ -1656,11 +1668,7 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
     nbr_idx, nbr_bin, sky, m_sky, sky_rad = ix[5], ix[7], ix[14], ix[15], ix[16]
     n = len(sel)
     k = len(det)
-    br = np.empty((2, k, 3))  # the pairs' directions, camera and catalogue
-    b, r = br[0], br[1]
-    for s in range(k):
-        for j in range(3):
-            b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
+    b, r = _pair_directions(b_all, v, det, cat)
     R2, proper = _rotation(b, r)
     if not proper:
         return _not_verified()
@@ -1707,11 +1715,7 @@ def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius
                     break
             if not found:
                 return _not_verified()
-        br = np.empty((2, k, 3))
-        b, r = br[0], br[1]
-        for s in range(k):
-            for j in range(3):
-                b[s, j], r[s, j] = b_all[det[s], j], v[cat[s], j]
+        b, r = _pair_directions(b_all, v, det, cat)
     if k < 2:
         return _not_verified()
     if again:
