@@ -588,7 +588,7 @@ def lean_call(st: LeanState) -> Callable:
     >>> import numpy as np
     >>> from adfusion.starid import Camera, Catalog, Solver
     >>> s = Solver(Catalog.hipparcos(mag_limit=4.0), Camera.pinhole(640, 480, 20.0))
-    >>> st, _, _, call = s._lean_state()
+    >>> st, _, _, call, _ = s._lean_state()
     >>> ints, _ = call(st, np.zeros((2, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
     >>> int(ints[0]) == NO_ROOM
     True

@@ -12,6 +12,7 @@ Example:
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -122,44 +123,45 @@ def _refitted(refit: tuple, counter: int, p_false: float, path: str,
         "n_predicted": 0})
 
 
-def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
-              project: Callable, paths: list[str], n: int, t0: float) -> Solution:
+def _accepted(ints: NDArray[np.int64], every: list[int], floats: NDArray[np.float64],
+              cam: Camera, project: Callable, paths: list[str], n: int,
+              t0: float) -> Solution:
     """The :class:`Solution` of a frame whose compiled call accepted one attitude and
     refitted it, read straight from :func:`starid.frame_kernels.solve_frame_packed`'s
-    arrays (``every``: the integers as a list) — what :func:`starid.frame_kernels.unpack`
-    reads, without its intermediate tuples: ~5 µs of a ~75 µs frame in cold caches
-    (docs/benchmarks.md, "One call, four arguments"). ``paths``: the path of each of the
-    frame's patterns."""
+    arrays (``every``: the integers as a list) — the refit's pairs, attitude, covariance
+    and residuals, the accepted candidate's p_false — without :func:`starid.frame_kernels.
+    unpack`'s intermediate tuples. ``paths``: the path of each of the frame's patterns.
+    The candidate list is made when it is first read (:meth:`Solution.__getattr__`,
+    :func:`_candidates_of`): most callers never read it, and making it was ~4 µs of a
+    ~70 µs frame in cold caches (docs/benchmarks.md, "The candidate list on first use")."""
     counter, n_acc, n_c, n_sel, _, rejected, m, _, pattern, tried = \
         every[1:frame_kernels.PACKED_HEADER]
-    o = frame_kernels.PACKED_HEADER + n_sel
-    best = every[o]
-    o += n_acc
-    counts = every[o:o + n_c]
-    o += n_c
+    o = frame_kernels.PACKED_HEADER + n_sel + n_acc + n_c  # the candidates' pairs
+    pairs = sum(every[o - n_c:o])
+    o += 2 * pairs  # the refit's pairs
+    f = 14 * n_c + 1 + pairs  # its floats: past the p_false, σ and each candidate's 13 + k
     scalars = floats[:n_c + 1].tolist()
-    f = n_c + 1
-    found = []
-    for i, k in enumerate(counts):
-        det, ids = every[o:o + k], every[o + k:o + 2 * k]
-        found.append(_candidate(det, ids, floats[f:f + 4], floats[f + 4:f + 13].reshape(3, 3),
-                                floats[f + 13:f + 13 + k], scalars[i], n_sel, cam, project))
-        if i == best:
-            kept = det, ids
-        o += 2 * k
-        f += 13 + k
     d, h = every[o:o + m], every[o + m:o + 2 * m]
-    cand = found[best]
-    if d == kept[0] and h == kept[1]:
-        # the refit kept the candidate's pairs (most frames): the same pairs' fit, so the
-        # same attitude and residuals to the bit (kernels.refine_pinhole); one object for
-        # both, as dataclasses.replace shares a field's object between two solutions
-        q, res, matches = cand.q_cam_icrs, cand.residuals_rad, cand.matches
-    else:
-        q, res, matches = floats[f:f + 4], floats[f + 13:f + 13 + m], None
-    refit = (1, d, h, q, floats[f + 4:f + 13].reshape(3, 3), res, scalars[n_c], rejected)
-    return _refitted(refit, counter, cand.p_false, paths[pattern], found, cam,
-                     time.perf_counter() - t0, n, tried, matches)
+    return made(Solution, {
+        "ok": True, "reason": "", "q_cam_icrs": floats[f:f + 4],
+        "matches": list(zip(d, h, strict=True)), "matching_counter": counter,
+        "covariance": floats[f + 4:f + 13].reshape(3, 3), "mode": "lost-in-space",
+        "time_s": time.perf_counter() - t0,
+        "p_false": scalars[every[frame_kernels.PACKED_HEADER + n_sel]],
+        "path": paths[pattern],
+        "_candidates_from": (_candidates_of, ints, floats, n_sel, cam, project),
+        "residuals_rad": floats[f + 13:f + 13 + m], "camera": cam, "n_detections": n,
+        "patterns_tried": tried, "sigma_px": scalars[n_c],
+        "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
+        "n_predicted": 0})
+
+
+def _candidates_of(ints: NDArray[np.int64], floats: NDArray[np.float64], n_pattern: int,
+                   cam: Camera, project: Callable) -> list[Candidate]:
+    """The verified candidates of :func:`starid.frame_kernels.solve_frame_packed`'s arrays
+    (of a pattern of ``n_pattern`` stars): a :class:`Solution`'s ``candidates``."""
+    return [_candidate(*c, n_pattern, cam, project)
+            for c in frame_kernels.unpack(ints, floats)[5]]
 
 
 def input_bounds(cam: Camera) -> tuple[float, float, float]:
@@ -391,7 +393,7 @@ class LostInSpace:
         flags = arr.flags
         if not (flags.c_contiguous and flags.aligned):
             return None
-        st, paths, cols, call = lean
+        st, paths, cols, call, rest_below = lean
         work, walk = getattr(_SCRATCH, "lean", _NO_LEAN)
         try:
             ints, floats = call(st, arr, work, walk)
@@ -411,8 +413,8 @@ class LostInSpace:
         n = min(n_all, self.max_detections)
         cam = self.camera
         if outcome == frame_kernels.ACCEPTED and every[5] == 1:  # one attitude, refitted
-            sol = _accepted(every, floats, cam, self._project, paths[n], n, t0)
-            if n_all == n and not self._rest_wanted(every[7], n):
+            sol = _accepted(ints, every, floats, cam, self._project, paths[n], n, t0)
+            if n_all == n and every[7] >= rest_below[n]:
                 return sol  # what _rest_checked decides of it, without the call
         else:
             # the walk continues from the call's state (copied: the array is the thread's)
@@ -432,11 +434,13 @@ class LostInSpace:
         return n_used < REST_CHECK_SHARE * n and n - n_used >= max(self.n_min, 3)
 
     def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]], int,
-                                   Callable] | bool:
+                                   Callable, list[int]] | bool:
         """:meth:`_solve_lean`'s compiled state of this solver's settings, index and camera
         (:func:`starid.frame_kernels.lean_state`), the paths of every detection count's
         patterns (Renken's, :meth:`_pattern_list`), the length of the walk's no-match
-        sets and the compiled call (:func:`starid.frame_kernels.lean_call`), or False where
+        sets, the compiled call (:func:`starid.frame_kernels.lean_call`) and, per
+        detection count, the fewest pairs a fix needs to have the rest of the detections
+        left unsearched (:meth:`_rest_wanted`), or False where
         the lean path does not apply (another method, the numpy
         matchers, a camera that is no ideal pinhole or is fitted, a focal range). Made on
         the first call and dropped by any assignment to the solver (:meth:`__setattr__`):
@@ -456,8 +460,11 @@ class LostInSpace:
             self.work_budget, self.max_patterns + 2, 2 * len(self._ix[0]),
             self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
             3 * self.tolerance_rad, _REFIT_CONSTANTS)
+        # _rest_wanted(used, n) as "used < rest_below[n]" (used and n integers)
+        rest_below = [min(math.ceil(REST_CHECK_SHARE * n), n - max(self.n_min, 3) + 1)
+                      for n in range(self.max_detections + 1)]
         return (st, [paths for _, _, paths in lists], self.max_patterns + 2,
-                frame_kernels.lean_call(st))
+                frame_kernels.lean_call(st), rest_below)
 
     def __setattr__(self, name: str, value) -> None:
         # a setting, the index (the triangles joining it) or the camera changed: the lean

@@ -147,6 +147,26 @@ class Solution:
     #: tracking: catalogue stars the prior predicted in the frame (0 for lost-in-space)
     n_predicted: int = 0
 
+    def __getattr__(self, name: str):
+        # Only for an attribute the instance lacks: ``candidates`` of a solution the
+        # compiled path made without it (starid.lost_in_space._accepted) is made here from
+        # ``_candidates_from`` (a function and its arguments) on first use. Two threads
+        # may both make it; the first one stored is kept.
+        if name == "candidates":
+            d = self.__dict__
+            made_from = d.get("_candidates_from")
+            if made_from is not None:
+                d.setdefault("candidates", made_from[0](*made_from[1:]))
+                d.pop("_candidates_from", None)
+            if "candidates" in d:
+                return d["candidates"]
+        raise AttributeError(f"'{type(self).__name__}' object has no attribute {name!r}")
+
+    def __getstate__(self) -> dict:
+        # pickled and copied with its candidates made (not the arrays they are made from)
+        self.candidates  # noqa: B018
+        return self.__dict__
+
     @property
     def ra_dec_roll_deg(self) -> tuple[float, float, float] | None:
         """Boresight RA, Dec and roll (deg; roll as in :mod:`starid.rotations`)."""

@@ -491,6 +491,31 @@ def test_the_compiled_paths_solutions_are_made_as_their_classes_make_them(cat):
     assert sol.candidates[0].predicted_xy.shape[1] == 2  # the cached property still works
 
 
+def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat):
+    """The lean path leaves a solution's candidate list unmade until it is read; then it
+    is the general path's, made once, and a pickled or copied solution carries it made
+    (not the arrays it is made from)."""
+    import copy
+    import dataclasses
+    import pickle
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    xy, _ = sky_frame(cat, cam, np.random.default_rng(2), n_false=3)
+    sol = solver.solve(np.ascontiguousarray(xy))
+    assert sol.ok and "candidates" not in vars(sol)
+    twins = [pickle.loads(pickle.dumps(sol)), copy.copy(sol)]
+    general = solver.solve(xy.tolist())
+    _same(sol, general)
+    assert sol.candidates is sol.candidates  # made once
+    assert sorted(vars(sol)) == sorted(f.name for f in dataclasses.fields(sol))
+    for twin in twins:
+        assert "_candidates_from" not in vars(twin)
+        _same(twin, general, fitted=True)
+    with pytest.raises(AttributeError, match="no attribute 'candidate'"):
+        sol.candidate  # noqa: B018
+
+
 def test_the_lean_path_follows_settings_changed_after_the_first_solve(cat):
     """The lean path keeps only what it takes of the camera: a threshold, a budget, a
     camera fit or the numpy matchers set after a solve apply to the next one, on an
