@@ -292,14 +292,16 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     """:func:`solve_frame` with its result in two flat arrays (integers, floats) and the
     catalogue rows as the catalogue's ``ids``: returning its ~20 arrays cost ~1 µs each
     to hand to Python, more than the Python that reads them (:func:`unpack` reads these).
+    The refit comes first: an accepted frame's solution is read from the front of both
+    arrays (``LostInSpace._solve_lean``), the candidates only when asked for.
 
     Integers: the header (:data:`PACKED_HEADER`: outcome, counter, n_acc, candidates C,
     pattern stars, refit status, pairs rejected, refit pairs m, weak rows W, pattern,
-    trials), sel, order,
-    each candidate's pair count, then per candidate its detections and ids, the refit's
-    detections and ids, the weak rows (W × 20). Floats: each candidate's p_false and the
-    refit's σ (px); per candidate q (4), covariance (9), residuals; the refit's q,
-    covariance and residuals; the weak p_false (W)."""
+    trials), sel, order, the refit's detections and ids, each candidate's pair count,
+    then per candidate its detections and ids, the weak rows (W × 20). Floats: the
+    refit's q (4), covariance (9) and residuals (m); the first accepted candidate's
+    p_false (0 for none) and the refit's σ (px); each candidate's p_false; per candidate
+    q (4), covariance (9), residuals; the weak p_false (W)."""
     outcome, sel, counter, cands, order, n_acc, refit, weak = solve_frame(
         ix, xy, xy_all, M, off, A, c, width, height, view_half, pix, tolerance_rad, state,
         pats, plen, budget, no_match, n_no_match, max_partials, work, r_min_px, sigma0_px,
@@ -311,9 +313,9 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     pairs = 0
     for i in range(n_c):
         pairs += c_n[i]
-    ints = np.empty(PACKED_HEADER + len(sel) + n_acc + n_c + 2 * pairs + 2 * m + 20 * n_w,
+    ints = np.empty(PACKED_HEADER + len(sel) + n_acc + 2 * m + n_c + 2 * pairs + 20 * n_w,
                     dtype=np.int64)
-    floats = np.empty(n_c + 1 + 13 * n_c + pairs + 13 + m + n_w)
+    floats = np.empty(13 + m + 2 + n_c + 13 * n_c + pairs + n_w)
     ints[0], ints[1], ints[2], ints[3], ints[4] = outcome, counter, n_acc, n_c, len(sel)
     ints[5], ints[6], ints[7], ints[8] = status, rejected, m, n_w
     ints[9], ints[10] = state[0], state[2]
@@ -324,13 +326,23 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     for i in range(n_acc):
         ints[o + i] = order[i]
     o += n_acc
+    for e in range(m):
+        ints[o + e], ints[o + m + e] = d[e], ids[k[e]]
+        floats[13 + e] = res[e]
+    o += 2 * m
+    for j in range(4):
+        floats[j] = q[j]
+    for j in range(9):
+        floats[4 + j] = cov[j // 3, j % 3]
+    f = 13 + m
+    floats[f] = c_p[order[0]] if n_acc > 0 else 0.0
+    floats[f + 1] = sigma_px
+    f += 2
     for i in range(n_c):
         ints[o + i] = c_n[i]
+        floats[f + i] = c_p[i]
     o += n_c
-    for i in range(n_c):  # the scalars first: Python reads them in one call
-        floats[i] = c_p[i]
-    floats[n_c] = sigma_px
-    f = n_c + 1
+    f += n_c
     for i in range(n_c):
         for e in range(c_n[i]):
             ints[o + e], ints[o + c_n[i] + e] = c_det[i, e], ids[c_cat[i, e]]
@@ -341,15 +353,6 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
         for j in range(9):
             floats[f + 4 + j] = c_cov[i, j // 3, j % 3]
         f += 13 + c_n[i]
-    for e in range(m):
-        ints[o + e], ints[o + m + e] = d[e], ids[k[e]]
-        floats[f + 13 + e] = res[e]
-    o += 2 * m
-    for j in range(4):
-        floats[f + j] = q[j]
-    for j in range(9):
-        floats[f + 4 + j] = cov[j // 3, j % 3]
-    f += 13 + m
     for r in range(n_w):
         for j in range(20):
             ints[o + 20 * r + j] = wi[r, j]
@@ -368,7 +371,7 @@ def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
 
     >>> import numpy as np
     >>> ints = np.array([0, 0, 0, 0, 3, -2, 0, 0, 0, 5, 9, 4, 1, 2])
-    >>> unpack(ints, np.zeros(14))[:3]
+    >>> unpack(ints, np.zeros(15))[:3]
     (0, [4, 1, 2], 0)
     """
     every = ints.tolist()  # one call: cheaper than slicing the array piece by piece
@@ -379,24 +382,25 @@ def unpack(ints: NDArray[np.int64], floats: NDArray[np.float64]) -> tuple:
     o += n_sel
     order = every[o:o + n_acc]
     o += n_acc
-    counts = every[o:o + n_c]
-    o += n_c
-    scalars = floats[:n_c + 1].tolist()
-    cands, f = [], n_c + 1
-    for i, n in enumerate(counts):
-        cands.append((every[o:o + n], every[o + n:o + 2 * n], floats[f:f + 4],
-                      floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + n],
-                      scalars[i]))
-        o += 2 * n
-        f += 13 + n
     if status == 1:
-        refit = (status, every[o:o + m], every[o + m:o + 2 * m], floats[f:f + 4],
-                 floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + m],
-                 scalars[n_c], rejected)
+        refit = (status, every[o:o + m], every[o + m:o + 2 * m], floats[:4],
+                 floats[4:13].reshape(3, 3), floats[13:13 + m], float(floats[14 + m]),
+                 rejected)
     else:
         refit = (status, [], [], None, None, None, 0.0, rejected)
     o += 2 * m
-    f += 13 + m
+    f = 15 + m
+    counts = every[o:o + n_c]
+    o += n_c
+    p_false = floats[f:f + n_c].tolist()
+    f += n_c
+    cands = []
+    for i, n in enumerate(counts):
+        cands.append((every[o:o + n], every[o + n:o + 2 * n], floats[f:f + 4],
+                      floats[f + 4:f + 13].reshape(3, 3), floats[f + 13:f + 13 + n],
+                      p_false[i]))
+        o += 2 * n
+        f += 13 + n
     if n_w:  # the weak rows close the integers (a NONE frame's too)
         weak = (floats[f:f + n_w], ints[len(ints) - 20 * n_w:].reshape(n_w, 20))
     else:

@@ -134,24 +134,19 @@ def _accepted(ints: NDArray[np.int64], every: list[int], floats: NDArray[np.floa
     The candidate list is made when it is first read (:meth:`Solution.__getattr__`,
     :func:`_candidates_of`): most callers never read it, and making it was ~4 µs of a
     ~70 µs frame in cold caches (docs/benchmarks.md, "The candidate list on first use")."""
-    counter, n_acc, n_c, n_sel, _, rejected, m, _, pattern, tried = \
+    counter, n_acc, _, n_sel, _, rejected, m, _, pattern, tried = \
         every[1:frame_kernels.PACKED_HEADER]
-    o = frame_kernels.PACKED_HEADER + n_sel + n_acc + n_c  # the candidates' pairs
-    pairs = sum(every[o - n_c:o])
-    o += 2 * pairs  # the refit's pairs
-    f = 14 * n_c + 1 + pairs  # its floats: past the p_false, σ and each candidate's 13 + k
-    scalars = floats[:n_c + 1].tolist()
+    o = frame_kernels.PACKED_HEADER + n_sel + n_acc  # the refit's pairs
     d, h = every[o:o + m], every[o + m:o + 2 * m]
+    p_false, sigma_px = floats[13 + m:15 + m].tolist()
     return made(Solution, {
-        "ok": True, "reason": "", "q_cam_icrs": floats[f:f + 4],
+        "ok": True, "reason": "", "q_cam_icrs": floats[:4],
         "matches": list(zip(d, h, strict=True)), "matching_counter": counter,
-        "covariance": floats[f + 4:f + 13].reshape(3, 3), "mode": "lost-in-space",
-        "time_s": time.perf_counter() - t0,
-        "p_false": scalars[every[frame_kernels.PACKED_HEADER + n_sel]],
-        "path": paths[pattern],
+        "covariance": floats[4:13].reshape(3, 3), "mode": "lost-in-space",
+        "time_s": time.perf_counter() - t0, "p_false": p_false, "path": paths[pattern],
         "_candidates_from": (_candidates_of, ints, floats, n_sel, cam, project),
-        "residuals_rad": floats[f + 13:f + 13 + m], "camera": cam, "n_detections": n,
-        "patterns_tried": tried, "sigma_px": scalars[n_c],
+        "residuals_rad": floats[13:13 + m], "camera": cam, "n_detections": n,
+        "patterns_tried": tried, "sigma_px": sigma_px,
         "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
         "n_predicted": 0})
 
