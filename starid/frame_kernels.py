@@ -577,58 +577,66 @@ def lean_state(ids, ix, M, off, A, c, width, height, view_half, pix, slack, tole
 
 
 # the types lean_call compiles solve_lean for: C-contiguous float64 detections, int64 work
-_LEAN_XY, _LEAN_INTS = types.float64[:, ::1], types.int64[::1]
+# arrays, the int64 and float64 arrays it writes its result into
+_LEAN_XY, _LEAN_INTS, _LEAN_FLOATS = types.float64[:, ::1], types.int64[::1], types.float64[::1]
 
 
 def lean_call(st: LeanState) -> Callable:
-    """:func:`solve_lean` for ``st``'s type, (N, 2) C-contiguous float64 detections and
-    int64 work arrays: numba's wrapper of that one compiled signature (compiled, or loaded
-    from the cache, now), to be called without the dispatcher. The dispatcher works out
-    every argument's type on every call, and a StructRef's type is found by Python code:
-    ~2.4 µs of a frame in cold caches, ~0.5 µs in warm ones (docs/benchmarks.md, "One
-    call, four arguments"). The wrapper checks nothing: the caller hands it only those
-    types (``LostInSpace._solve_lean``), which it reads as them.
+    """:func:`solve_lean` for ``st``'s type, (N, 2) C-contiguous float64 detections, int64
+    work arrays and the int64 and float64 arrays it writes into: numba's wrapper of that
+    one compiled signature (compiled, or loaded from the cache, now), to be called without
+    the dispatcher. The dispatcher works out every argument's type on every call, and a
+    StructRef's type is found by Python code: ~2.4 µs of a frame in cold caches, ~0.5 µs
+    in warm ones (docs/benchmarks.md, "One call, four arguments"). The wrapper checks
+    nothing: the caller hands it only those types (``LostInSpace._solve_lean``), which it
+    reads as them.
 
     >>> import numpy as np
     >>> from adfusion.starid import Camera, Catalog, Solver
     >>> s = Solver(Catalog.hipparcos(mag_limit=4.0), Camera.pinhole(640, 480, 20.0))
     >>> st, _, _, call, _ = s._lean_state()
-    >>> ints, _ = call(st, np.zeros((2, 2)), np.zeros(0, np.int64), np.zeros(0, np.int64))
-    >>> int(ints[0]) == NO_ROOM
+    >>> none = np.zeros(0, np.int64)
+    >>> call(st, np.zeros((2, 2)), none, none, none, np.zeros(0))[0] == NO_ROOM
     True
     """
-    return solve_lean.compile((numba.typeof(st), _LEAN_XY, _LEAN_INTS, _LEAN_INTS))
+    return solve_lean.compile((numba.typeof(st), _LEAN_XY, _LEAN_INTS, _LEAN_INTS,
+                               _LEAN_INTS, _LEAN_FLOATS))
 
 
 @_jit
-def _lean_flag(code):
-    ints = np.zeros(PACKED_HEADER, dtype=np.int64)
-    ints[0] = code
-    return ints, np.zeros(0)
-
-
-@_jit
-def solve_lean(st, xy, work, walk):
+def solve_lean(st, xy, work, walk, out_ints, out_floats):
     """``Solver.solve(xy)`` without a prior for a solver's :class:`LeanState` ``st``: the
     input check (:func:`input_problem`) and :func:`solve_frame_packed` on the first
     ``max_det`` detections, refitted on all of them, in one call. ``work`` is the search's
     scratch (all −1, at least ``work_len`` long), ``walk`` (at least :data:`LEAN_WALK` +
     ``no_match_len`` long) receives the walk's state, no-match count and sets, for a caller
-    that continues it. Returns :func:`solve_frame_packed`'s arrays, or a header alone whose
-    outcome is :data:`REFUSED` (fewer than 3 detections or the check refused them: the
-    caller's general path says why) or :data:`NO_ROOM` (arrays too small)."""
+    that continues it. :func:`solve_frame_packed`'s arrays are written to the front of
+    ``out_ints`` and ``out_floats``: handing two new arrays to Python cost ~1 µs warm
+    (numba finds the array type by unpickling it for each), more in cold caches.
+
+    Returns (outcome, integers written, floats written), or (:data:`REFUSED`, 0, 0) —
+    fewer than 3 detections or the check refused them: the caller's general path says
+    why — or (:data:`NO_ROOM`, integers, floats): an array too small (``work``, ``walk``:
+    0, 0; ``out_*``: the lengths the result needs; the call leaves the walk to start
+    again)."""
     n = min(xy.shape[0], st.max_det)
     if len(work) < st.work_len or len(walk) < LEAN_WALK + st.no_match_len:
-        return _lean_flag(NO_ROOM)
+        return NO_ROOM, 0, 0
     if n < 3 or input_problem(xy, n, st.width, st.height, st.slack)[0] != 0:
-        return _lean_flag(REFUSED)
+        return REFUSED, 0, 0
     state, no_match, n_no_match = walk_parts(walk, st.no_match_len)
     state[:] = SEARCH_START
     no_match[:] = 0
     n_no_match[0] = 0
     lo, hi = st.pat_start[n], st.pat_start[n + 1]
-    return solve_frame_packed(
+    ints, floats = solve_frame_packed(
         st.ids, st.ix, xy[:n], xy, st.M, st.off, st.A, st.c, st.width, st.height,
         st.view_half, st.pix, st.tolerance_rad, state, st.pats[lo:hi], st.plen[lo:hi],
         st.budget, no_match, n_no_match, st.max_partials, work, st.r_min_px, st.sigma0_px,
         st.p_false_max, st.distinct_rad, True, st.consts)
+    n_i, n_f = len(ints), len(floats)
+    if n_i > len(out_ints) or n_f > len(out_floats):
+        return NO_ROOM, n_i, n_f
+    out_ints[:n_i] = ints
+    out_floats[:n_f] = floats
+    return ints[0], n_i, n_f

@@ -11,6 +11,7 @@ Example:
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import math
 import threading
@@ -50,7 +51,10 @@ REST_CHECK_SHARE = 0.5
 # the lean path: a thread's work arrays before its first call (too small: the kernel asks
 # for them), empty pattern lists (fewer than 3 detections), and the attributes a solve
 # caches (they keep its state)
-_NO_LEAN = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+_NO_LEAN = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=np.int64), np.zeros(0))
+#: the lean path's result arrays' first length (a frame with more grows them)
+_LEAN_OUT = 1024
 _NO_PATS, _NO_COUNTS = np.zeros((0, 8), dtype=np.int64), np.zeros(0, dtype=np.int64)
 _LEAN_KEEPS = frozenset({"_lean", "_frame_camera_kept", "_cone_cache", "_triangles_done"})
 
@@ -123,9 +127,8 @@ def _refitted(refit: tuple, counter: int, p_false: float, path: str,
         "n_predicted": 0})
 
 
-def _accepted(ints: NDArray[np.int64], every: list[int], floats: NDArray[np.float64],
-              cam: Camera, project: Callable, paths: list[str], n: int,
-              t0: float) -> Solution:
+def _accepted(every: list[int], floats: NDArray[np.float64], cam: Camera,
+              project: Callable, paths: list[str], n: int, t0: float) -> Solution:
     """The :class:`Solution` of a frame whose compiled call accepted one attitude and
     refitted it, read straight from :func:`starid.frame_kernels.solve_frame_packed`'s
     arrays (``every``: the integers as a list) — the refit's pairs, attitude, covariance
@@ -144,19 +147,20 @@ def _accepted(ints: NDArray[np.int64], every: list[int], floats: NDArray[np.floa
         "matches": list(zip(d, h, strict=True)), "matching_counter": counter,
         "covariance": floats[4:13].reshape(3, 3), "mode": "lost-in-space",
         "time_s": time.perf_counter() - t0, "p_false": p_false, "path": paths[pattern],
-        "_candidates_from": (_candidates_of, ints, floats, n_sel, cam, project),
+        "_candidates_from": (_candidates_of, every, floats, n_sel, cam, project),
         "residuals_rad": floats[13:13 + m], "camera": cam, "n_detections": n,
         "patterns_tried": tried, "sigma_px": sigma_px,
         "note": f"{rejected} pair(s) rejected by the residuals" if rejected else "",
         "n_predicted": 0})
 
 
-def _candidates_of(ints: NDArray[np.int64], floats: NDArray[np.float64], n_pattern: int,
+def _candidates_of(every: list[int], floats: NDArray[np.float64], n_pattern: int,
                    cam: Camera, project: Callable) -> list[Candidate]:
     """The verified candidates of :func:`starid.frame_kernels.solve_frame_packed`'s arrays
-    (of a pattern of ``n_pattern`` stars): a :class:`Solution`'s ``candidates``."""
+    (the integers as a list; of a pattern of ``n_pattern`` stars): a :class:`Solution`'s
+    ``candidates``."""
     return [_candidate(*c, n_pattern, cam, project)
-            for c in frame_kernels.unpack(ints, floats)[5]]
+            for c in frame_kernels.unpack(np.array(every, dtype=np.int64), floats)[5]]
 
 
 def input_bounds(cam: Camera) -> tuple[float, float, float]:
@@ -389,32 +393,38 @@ class LostInSpace:
         if not (flags.c_contiguous and flags.aligned):
             return None
         st, paths, cols, call, rest_below = lean
-        work, walk = getattr(_SCRATCH, "lean", _NO_LEAN)
+        work, walk, out_i, out_f = getattr(_SCRATCH, "lean", _NO_LEAN)
         try:
-            ints, floats = call(st, arr, work, walk)
-            # a header alone: refused, or this thread's first lean call (NO_ROOM)
-            if len(ints) == frame_kernels.PACKED_HEADER and ints[0] == frame_kernels.NO_ROOM:
-                work, walk = _SCRATCH.lean = (self._scratch(), np.zeros(
-                    frame_kernels.LEAN_WALK + cols, dtype=np.int64))
-                ints, floats = call(st, arr, work, walk)
+            outcome, n_i, n_f = call(st, arr, work, walk, out_i, out_f)
+            # this thread's first call (the arrays made, then the result's), or a result
+            # longer than the result arrays (the call says how long)
+            while outcome == frame_kernels.NO_ROOM:
+                work, walk, out_i, out_f = _SCRATCH.lean = (
+                    self._scratch(), np.zeros(frame_kernels.LEAN_WALK + cols, dtype=np.int64),
+                    np.zeros(max(_LEAN_OUT, len(out_i), 2 * n_i), dtype=np.int64),
+                    np.zeros(max(_LEAN_OUT, len(out_f), 2 * n_f)))
+                outcome, n_i, n_f = call(st, arr, work, walk, out_i, out_f)
         except BaseException:
             self._drop_scratch()
             raise
-        every = ints.tolist()
-        outcome = every[0]
         if outcome == frame_kernels.REFUSED:
             return None  # the general path says what is wrong
+        # the thread's arrays are written again by its next call: the result is copied
+        every, floats = out_i[:n_i].tolist(), out_f[:n_f].copy()
         n_all = len(arr)
         n = min(n_all, self.max_detections)
         cam = self.camera
         if outcome == frame_kernels.ACCEPTED and every[5] == 1:  # one attitude, refitted
-            sol = _accepted(ints, every, floats, cam, self._project, paths[n], n, t0)
-            if n_all == n and every[7] >= rest_below[n]:
-                return sol  # what _rest_checked decides of it, without the call
+            sol = _accepted(every, floats, cam, self._project, paths[n], n, t0)
+            # the pairs of the search's detections (the refit's pairs are in detection
+            # order, kernels._by_detection): what _rest_checked decides of them, without it
+            used = every[7] if n_all == n else bisect.bisect_left(sol.matches, (n,))
+            if used >= rest_below[n]:
+                return sol
         else:
             # the walk continues from the call's state (copied: the array is the thread's)
             first = (tuple(a.copy() for a in frame_kernels.walk_parts(walk, cols)),
-                     frame_kernels.unpack(ints, floats))
+                     frame_kernels.unpack(out_i[:n_i].copy(), floats))
             sol, tried, filled = self._frame_solution(arr[:n], cam, arr, None, None, t0,
                                                       first=first)
             if not filled:

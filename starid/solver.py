@@ -335,12 +335,11 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             return sol
         # the search's detections used: matches are one pair per detection, so with none
         # past the search's, their count (the common case: no set to build)
-        n_all = len(detections.xy if hasattr(detections, "xy") else detections)
-        used = None if n_all <= len(xy) else {d for d, _ in sol.matches if d < len(xy)}
-        if not self._rest_wanted(len(sol.matches) if used is None else len(used), len(xy)):
+        n_all, n = len(detections.xy if hasattr(detections, "xy") else detections), len(xy)
+        n_used = len(sol.matches) if n_all <= n else sum(d < n for d, _ in sol.matches)
+        if not self._rest_wanted(n_used, n):
             return sol
-        if used is None:
-            used = {d for d, _ in sol.matches}
+        used = {d for d, _ in sol.matches}
         rest = np.array([i for i in range(len(xy)) if i not in used], dtype=np.int64)
         # the camera the fix fitted; the first patterns of the rest (its brightest): stars
         # left over in numbers are found there, and a rest of noise costs little

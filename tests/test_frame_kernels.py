@@ -516,6 +516,22 @@ def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat):
         sol.candidate  # noqa: B018
 
 
+def test_a_result_longer_than_the_lean_paths_arrays_grows_them(cat, monkeypatch):
+    """The lean call writes its result into the thread's arrays; a result that does not
+    fit has them made as long as it needs and the frame solved again: the same
+    solution, on a thread's first call too."""
+    from adfusion.starid import lost_in_space
+
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    xy, _ = sky_frame(cat, cam, np.random.default_rng(4), n_false=8)
+    general = solver.solve(xy.tolist())
+    monkeypatch.setattr(lost_in_space, "_LEAN_OUT", 8)
+    solver._drop_scratch()
+    _same(solver.solve(np.ascontiguousarray(xy)), general)
+    assert len(lost_in_space._SCRATCH.lean[2]) > 8
+
+
 def test_the_lean_path_follows_settings_changed_after_the_first_solve(cat):
     """The lean path keeps only what it takes of the camera: a threshold, a budget, a
     camera fit or the numpy matchers set after a solve apply to the next one, on an
