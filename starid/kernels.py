@@ -542,15 +542,57 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
             a, b, c = cur[r, 0], cur[r, 1], cur[r, 2]
             keys[r, 1] = -_stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, -keys[r, 1])
             keys[r, 4] = -_stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, c, -keys[r, 4])
-    for i in range(1, k):  # insertion sort (a few rows) into the scan's order
-        j = i
-        while j > 0 and _key_before(keys[j], keys[j - 1]):
-            for t in range(7):
-                keys[j, t], keys[j - 1, t] = keys[j - 1, t], keys[j, t]
-            for t in range(3):
-                cur[j, t], cur[j - 1, t] = cur[j - 1, t], cur[j, t]
-            j -= 1
-    return cur[:k]
+    return _in_scan_order(cur, keys, k)
+
+
+@_jit
+def _in_scan_order(cur, keys, k):
+    """The rows ``cur[:k]`` ordered by their sort keys ``keys`` (:func:`_key_before`; no
+    two alike: they name the row's stars): by insertion for a few rows, else by a merge
+    sort of their indices — at σ = 2 px a look-up finds ~200 rows (up to ~600), and
+    sorting them by insertion took most of the look-up's ~150 µs."""
+    if k <= 16:
+        for i in range(1, k):
+            j = i
+            while j > 0 and _key_before(keys[j], keys[j - 1]):
+                for t in range(7):
+                    keys[j, t], keys[j - 1, t] = keys[j - 1, t], keys[j, t]
+                for t in range(3):
+                    cur[j, t], cur[j - 1, t] = cur[j - 1, t], cur[j, t]
+                j -= 1
+        return cur[:k]
+    idx = np.empty((2, k), dtype=np.int64)
+    src, dst = idx[0], idx[1]
+    for i in range(k):
+        src[i] = i
+    width = 1
+    while width < k:  # bottom-up: runs of width merged pairwise
+        for lo in range(0, k, 2 * width):
+            mid, hi = min(lo + width, k), min(lo + 2 * width, k)
+            i, j = lo, mid
+            for t in range(lo, hi):
+                if j < hi and (i == mid or _row_before(keys, src[j], src[i])):
+                    dst[t] = src[j]
+                    j += 1
+                else:
+                    dst[t] = src[i]
+                    i += 1
+        src, dst = dst, src
+        width *= 2
+    out = np.empty((k, 3), dtype=np.int64)
+    for r in range(k):
+        for t in range(3):
+            out[r, t] = cur[src[r], t]
+    return out
+
+
+@_jit_inline
+def _row_before(keys, r, s):
+    """:func:`_key_before` of the rows ``r`` and ``s`` of ``keys``."""
+    for t in range(7):
+        if keys[r, t] != keys[s, t]:
+            return keys[r, t] < keys[s, t]
+    return False
 
 
 @_jit

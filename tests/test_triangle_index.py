@@ -29,8 +29,9 @@ def solver():
 
 def _rows_both_ways(ix_table, ix_scan, b, pats, tolerance_rad, rel_tol, work):
     """kernels._triangles of every pattern (detections ``pats`` of directions ``b``) with
-    the table and by scanning: the number of patterns compared and those looked up."""
-    looked_up = 0
+    the table and by scanning: the number of patterns compared, those looked up and the
+    most rows one gave."""
+    looked_up = most = 0
     for pat in pats:
         _, _, _, lo, hi, chir = kernels.pattern_windows(np.asarray(pat, np.int64), b,
                                                           tolerance_rad, rel_tol)
@@ -39,8 +40,9 @@ def _rows_both_ways(ix_table, ix_scan, b, pats, tolerance_rad, rel_tol, work):
         assert got[1:] == want[1:]
         np.testing.assert_array_equal(got[0], want[0])
         looked_up += bool(kernels._looked_up(ix_table, lo))
+        most = max(most, len(got[0]))
     assert (work == -1).all()
-    return len(pats), looked_up
+    return len(pats), looked_up, most
 
 
 def test_looked_up_triangles_are_the_scans_rows(solver):
@@ -51,7 +53,7 @@ def test_looked_up_triangles_are_the_scans_rows(solver):
     cat, cam = solver.catalog, solver.camera
     work = kernels.scratch(ix_scan)
     rng = np.random.default_rng(5)
-    rows = looked_up = 0
+    rows = looked_up = most = 0
     for f in range(16):
         if f % 2:
             xy = rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (12, 2))
@@ -61,10 +63,27 @@ def test_looked_up_triangles_are_the_scans_rows(solver):
         b = cam.pixels_to_vectors(xy)
         pats = [*list(itertools.combinations(range(len(b)), 3))[::3], tuple(range(6))]
         tol = solver.tolerance_rad * (1, 3)[f % 4 // 2]
-        n, k = _rows_both_ways(solver._ix, ix_scan, b, pats, tol, 0.005 * (f % 3 == 0),
-                               work)
-        rows, looked_up = rows + n, looked_up + k
+        n, k, m = _rows_both_ways(solver._ix, ix_scan, b, pats, tol, 0.005 * (f % 3 == 0),
+                                  work)
+        rows, looked_up, most = rows + n, looked_up + k, max(most, m)
     assert looked_up > 0.9 * rows  # most looked up; those reaching past the list scanned
+    assert most > 16  # the wide windows' rows are merge-sorted (kernels._in_scan_order)
+
+
+@pytest.mark.parametrize("k", [0, 1, 16, 17, 200, 613])
+def test_the_looked_up_rows_are_put_in_the_scans_order_however_many(k):
+    """kernels._in_scan_order (insertion for a few rows, a merge sort past 16: σ = 2 px
+    finds hundreds) against Python's sort of the same keys, with the leading keys tied
+    often, as the scan's order ties rows on their first pair."""
+    rng = np.random.default_rng(k)
+    keys = np.column_stack([rng.integers(0, 2, k), -rng.choice([0.1, 0.2, 0.3], k),
+                            rng.integers(0, 3, k), rng.integers(3, 6, k),
+                            -rng.choice([0.4, 0.5], k), rng.integers(0, 3, k),
+                            rng.permutation(k) + 10]).astype(float)
+    cur = rng.integers(0, 5000, (max(k, 1), 3))
+    want = cur[sorted(range(k), key=lambda r: tuple(keys[r]))]
+    got = kernels._in_scan_order(cur.copy(), keys.copy(), k)
+    np.testing.assert_array_equal(got, want.reshape(-1, 3))
 
 
 def _triangle_with_sides(d01, d02, d12, sign):
