@@ -59,7 +59,7 @@ __all__ = ["ACCEPTED", "LEAN_WALK", "NONE", "NO_ROOM", "PACKED_HEADER", "REFUSED
            "solve_lean", "unpack", "verify_weak", "walk_parts"]
 
 # solve_frame() outcome; solve_lean()'s own: the input check refused the detections, or
-# the work arrays it was given are too small for the solver
+# the work or result arrays it was given are too small
 NONE, ACCEPTED, SEVERAL = 0, 1, 2
 REFUSED, NO_ROOM = -1, -2
 # the cone the refit draws its stars from is this much wider than the view (rad), where the
@@ -532,8 +532,9 @@ class _LeanStateType(types.StructRef):
 class LeanState(structref.StructRefProxy):
     """A solver's constant arguments of :func:`solve_frame_packed` — catalogue ids, index
     arrays, camera, tolerances, every detection count's pattern list — held in one
-    compiled object (:func:`lean_state` makes it), so that :func:`solve_lean` takes four
-    arguments instead of 27: handing numba the 27, one of them a tuple of 18 arrays, cost
+    compiled object (:func:`lean_state` makes it), so that :func:`solve_lean` takes six
+    arguments instead of 27 (and the arrays): handing numba the 27, one of them a tuple of
+    18 arrays, cost
     ~8 µs of a ~90 µs frame (docs/concepts/identification.md, "One compiled call")."""
 
 

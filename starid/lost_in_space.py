@@ -110,15 +110,14 @@ def _candidate(det: list[int], ids: list[int], q: NDArray, cov: NDArray, res: ND
 
 def _refitted(refit: tuple, counter: int, p_false: float, path: str,
               found: list[Candidate], cam: Camera, time_s: float = 0.0, n: int = 0,
-              tried: int = 0, matches: list | None = None) -> Solution:
+              tried: int = 0) -> Solution:
     """The solution of one accepted attitude (its candidate's ``p_false``) refitted in the
     kernel (``refit``: :func:`starid.frame_kernels.unpack`'s, status 1), with the solve's
-    time, detections and trials when they are known; ``matches``: its pairs' list when the
-    caller has it already (the candidate's, when the refit kept its pairs)."""
+    time, detections and trials when they are known."""
     _, d, h, rq, rcov, rres, sigma_px, rejected = refit
     return made(Solution, {
         "ok": True, "reason": "", "q_cam_icrs": rq,
-        "matches": list(zip(d, h, strict=True)) if matches is None else matches,
+        "matches": list(zip(d, h, strict=True)),
         "matching_counter": counter, "covariance": rcov, "mode": "lost-in-space",
         "time_s": time_s, "p_false": p_false, "path": path, "candidates": found,
         "residuals_rad": rres, "camera": cam, "n_detections": n, "patterns_tried": tried,
@@ -397,13 +396,20 @@ class LostInSpace:
         try:
             outcome, n_i, n_f = call(st, arr, work, walk, out_i, out_f)
             # this thread's first call (the arrays made, then the result's), or a result
-            # longer than the result arrays (the call says how long)
-            while outcome == frame_kernels.NO_ROOM:
+            # longer than the result arrays (the call says how long): twice at most
+            for _ in range(2):
+                if outcome != frame_kernels.NO_ROOM:
+                    break
                 work, walk, out_i, out_f = _SCRATCH.lean = (
                     self._scratch(), np.zeros(frame_kernels.LEAN_WALK + cols, dtype=np.int64),
                     np.zeros(max(_LEAN_OUT, len(out_i), 2 * n_i), dtype=np.int64),
                     np.zeros(max(_LEAN_OUT, len(out_f), 2 * n_f)))
                 outcome, n_i, n_f = call(st, arr, work, walk, out_i, out_f)
+            if outcome == frame_kernels.NO_ROOM:
+                raise RuntimeError(
+                    "the lean solve asked for larger arrays after it was given them (a "
+                    "bug: its work lengths disagree with LostInSpace._scratch); set "
+                    "solver._frame_kernel = False to solve this frame the general way")
         except BaseException:
             self._drop_scratch()
             raise
@@ -417,7 +423,7 @@ class LostInSpace:
         if outcome == frame_kernels.ACCEPTED and every[5] == 1:  # one attitude, refitted
             sol = _accepted(every, floats, cam, self._project, paths[n], n, t0)
             # the pairs of the search's detections (the refit's pairs are in detection
-            # order, kernels._by_detection): what _rest_checked decides of them, without it
+            # order, frame_kernels._by_detection): what _rest_checked decides, without it
             used = every[7] if n_all == n else bisect.bisect_left(sol.matches, (n,))
             if used >= rest_below[n]:
                 return sol

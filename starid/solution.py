@@ -23,11 +23,13 @@ __all__ = ["Candidate", "Prior", "Solution"]
 
 
 def made(cls: type, values: dict):
-    """An instance of the frozen dataclass ``cls`` whose fields are ``values`` (every one
-    of them, in a dict the instance keeps), its ``__init__`` skipped: the compiled
-    lost-in-space path builds a :class:`Solution` and its :class:`Candidate` per frame,
-    and their ~27 ``object.__setattr__`` calls cost ~3 µs of a ~70 µs solve. Neither class
-    checks its fields on creation; ``tests/test_frame_kernels.py`` holds the two ways equal.
+    """An instance of the frozen dataclass ``cls`` whose fields are ``values`` (in a dict
+    the instance keeps), its ``__init__`` skipped: the compiled lost-in-space path builds a
+    :class:`Solution` per frame, and its ~18 ``object.__setattr__`` calls cost ~2 µs of a
+    ~70 µs solve. A :class:`Solution`'s ``candidates`` may be given instead as
+    ``_candidates_from`` (a function and its arguments), made when first read
+    (:meth:`Solution.__getattr__`). Neither class checks its fields on creation;
+    ``tests/test_frame_kernels.py`` holds the two ways equal.
 
     >>> c = made(Candidate, {"q_cam_icrs": None, "matches": [], "residuals_rad": None,
     ...                      "p_false": 0.5, "n_pattern": 3, "camera": None,
@@ -156,7 +158,11 @@ class Solution:
             d = self.__dict__
             made_from = d.get("_candidates_from")
             if made_from is not None:
-                d.setdefault("candidates", made_from[0](*made_from[1:]))
+                try:
+                    found = made_from[0](*made_from[1:])
+                except AttributeError as e:  # not to be taken for a missing attribute
+                    raise RuntimeError(f"making the solution's candidates failed: {e}") from e
+                d.setdefault("candidates", found)
                 d.pop("_candidates_from", None)
             if "candidates" in d:
                 return d["candidates"]

@@ -491,29 +491,54 @@ def test_the_compiled_paths_solutions_are_made_as_their_classes_make_them(cat):
     assert sol.candidates[0].predicted_xy.shape[1] == 2  # the cached property still works
 
 
-def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat):
+def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat, monkeypatch):
     """The lean path leaves a solution's candidate list unmade until it is read; then it
     is the general path's, made once, and a pickled or copied solution carries it made
-    (not the arrays it is made from)."""
+    (not the arrays it is made from). A failure while making it is no missing attribute."""
     import copy
     import dataclasses
     import pickle
 
+    from adfusion.starid import lost_in_space
+
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam)
     xy, _ = sky_frame(cat, cam, np.random.default_rng(2), n_false=3)
-    sol = solver.solve(np.ascontiguousarray(xy))
-    assert sol.ok and "candidates" not in vars(sol)
-    twins = [pickle.loads(pickle.dumps(sol)), copy.copy(sol)]
+    arr = np.ascontiguousarray(xy)
     general = solver.solve(xy.tolist())
-    _same(sol, general)
-    assert sol.candidates is sol.candidates  # made once
+    sol = solver.solve(arr)
+    assert sol.ok and "candidates" not in vars(sol)
+    first = sol.candidates  # made here, through Solution.__getattr__
+    assert sol.candidates is first and "_candidates_from" not in vars(sol)
     assert sorted(vars(sol)) == sorted(f.name for f in dataclasses.fields(sol))
-    for twin in twins:
+    _same(sol, general)
+    for make_twin in (lambda s: pickle.loads(pickle.dumps(s)), copy.copy):
+        unmade = solver.solve(arr)
+        assert "candidates" not in vars(unmade)
+        twin = make_twin(unmade)
         assert "_candidates_from" not in vars(twin)
         _same(twin, general, fitted=True)
     with pytest.raises(AttributeError, match="no attribute 'candidate'"):
         sol.candidate  # noqa: B018
+
+    def broken(*args):
+        raise AttributeError("a bug inside")
+
+    monkeypatch.setattr(lost_in_space, "_candidates_of", broken)
+    with pytest.raises(RuntimeError, match="a bug inside"):
+        hasattr(solver.solve(arr), "candidates")
+
+
+def test_a_lean_call_that_keeps_asking_for_room_stops_with_an_error(cat, monkeypatch):
+    """The lean path makes its arrays longer when the call asks, twice at most: a call
+    that asks again (a bug) ends in an error that says so, not in an endless loop."""
+    cam = starid.Camera.pinhole(1024, 768, 15.0)
+    solver = starid.Solver(cat, cam)
+    monkeypatch.setattr(frame_kernels, "lean_call",
+                        lambda st: lambda *a: (frame_kernels.NO_ROOM, 10, 10))
+    xy, _ = sky_frame(cat, cam, np.random.default_rng(2))
+    with pytest.raises(RuntimeError, match="asked for larger arrays"):
+        solver.solve(np.ascontiguousarray(xy))
 
 
 def test_a_result_longer_than_the_lean_paths_arrays_grows_them(cat, monkeypatch):
