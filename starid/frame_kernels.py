@@ -534,8 +534,8 @@ class LeanState(structref.StructRefProxy):
     arrays, camera, tolerances, every detection count's pattern list — held in one
     compiled object (:func:`lean_state` makes it), so that :func:`solve_lean` takes six
     arguments instead of 27 (and the arrays): handing numba the 27, one of them a tuple of
-    18 arrays, cost
-    ~8 µs of a ~90 µs frame (docs/concepts/identification.md, "One compiled call")."""
+    18 arrays, cost ~8 µs of a ~90 µs frame (docs/concepts/identification.md, "One
+    compiled call")."""
 
 
 _LEAN_FIELDS = ("ids", "ix", "M", "off", "A", "c", "width", "height", "view_half", "pix",

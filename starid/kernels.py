@@ -377,14 +377,6 @@ def _stored_cos(nbr_ptr, nbr_idx, nbr_cos, a, b, near):
 
 
 @_jit_inline
-def _key_before(a, b):
-    for t in range(7):
-        if a[t] != b[t]:
-            return a[t] < b[t]
-    return False
-
-
-@_jit_inline
 def _quanta_in(lo, hi, c, n):
     """The quanta (:data:`starid.triangle_index.QUANTA` per cell) a sorted side in cell
     ``c`` of ``n`` may have to lie within [lo, hi] (in cells): (first, last). A side in
@@ -547,14 +539,14 @@ def _triangles_looked_up(ix, cmin, cmax, chirality):
 
 @_jit
 def _in_scan_order(cur, keys, k):
-    """The rows ``cur[:k]`` ordered by their sort keys ``keys`` (:func:`_key_before`; no
+    """The rows ``cur[:k]`` ordered by their sort keys ``keys`` (:func:`_row_before`; no
     two alike: they name the row's stars): by insertion for a few rows, else by a merge
     sort of their indices — at σ = 2 px a look-up finds ~180 rows (up to ~640), and
     sorting them by insertion took most of the look-up's ~150 µs."""
     if k <= 16:
         for i in range(1, k):
             j = i
-            while j > 0 and _key_before(keys[j], keys[j - 1]):
+            while j > 0 and _row_before(keys, j, j - 1):
                 for t in range(7):
                     keys[j, t], keys[j - 1, t] = keys[j - 1, t], keys[j, t]
                 for t in range(3):
@@ -588,7 +580,8 @@ def _in_scan_order(cur, keys, k):
 
 @_jit_inline
 def _row_before(keys, r, s):
-    """:func:`_key_before` of the rows ``r`` and ``s`` of ``keys``."""
+    """Whether row ``r`` of the sort keys ``keys`` comes before row ``s``: the first key
+    that differs decides, lower first."""
     for t in range(7):
         if keys[r, t] != keys[s, t]:
             return keys[r, t] < keys[s, t]

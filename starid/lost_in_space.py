@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import bisect
 import itertools
-import math
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -116,8 +115,7 @@ def _refitted(refit: tuple, counter: int, p_false: float, path: str,
     time, detections and trials when they are known."""
     _, d, h, rq, rcov, rres, sigma_px, rejected = refit
     return made(Solution, {
-        "ok": True, "reason": "", "q_cam_icrs": rq,
-        "matches": list(zip(d, h, strict=True)),
+        "ok": True, "reason": "", "q_cam_icrs": rq, "matches": list(zip(d, h, strict=True)),
         "matching_counter": counter, "covariance": rcov, "mode": "lost-in-space",
         "time_s": time_s, "p_false": p_false, "path": path, "candidates": found,
         "residuals_rad": rres, "camera": cam, "n_detections": n, "patterns_tried": tried,
@@ -471,8 +469,9 @@ class LostInSpace:
             self.work_budget, self.max_patterns + 2, 2 * len(self._ix[0]),
             self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
             3 * self.tolerance_rad, _REFIT_CONSTANTS)
-        # _rest_wanted(used, n) as "used < rest_below[n]" (used and n integers)
-        rest_below = [min(math.ceil(REST_CHECK_SHARE * n), n - max(self.n_min, 3) + 1)
+        # _rest_wanted(used, n) as "used < rest_below[n]": the fewest pairs it is False
+        # for (it is for every count past that one)
+        rest_below = [next(u for u in range(n + 2) if not self._rest_wanted(u, n))
                       for n in range(self.max_detections + 1)]
         return (st, [paths for _, _, paths in lists], self.max_patterns + 2,
                 frame_kernels.lean_call(st), rest_below)
