@@ -50,11 +50,12 @@ import numpy as np
 from scipy.stats import chi2
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.starid import Prior, detect
-from adfusion.starid import rotations as rot
+from adfusion.starid import Prior
+from adfusion.starid.detection import detect
 
 from adfusion.basilisk.acs import attitude_errors_rad, nees, sky_and_solver, summarize
 from adfusion.basilisk.scenarios import run_loop, scenario
+from adfusion.maths import rotations as rot
 
 ESTIMATORS = ("adfusion", "adfusion_st", "ukf")
 BASILISK_MODULES = ("inertialUKF", "mrpFeedback", "attTrackingError", "imuSensor",
@@ -146,9 +147,9 @@ def _cost(run, frame_images) -> dict[str, Any]:
             windows.detect(img, prior)
             tw_ts.append(time.thread_time() - t0)
     if ts:
-        cost["starid.detect alone, whole frame (same frames)"] = _us(ts)
+        cost["starid.detection.detect alone, whole frame (same frames)"] = _us(ts)
     if tw_ts:
-        cost["starid.detect_roi TrackingWindows.detect alone (same frames)"] = _us(tw_ts)
+        cost["starid.detection.windows TrackingWindows.detect alone (same frames)"] = _us(tw_ts)
     cost["adfusion module alone, gyro-only UpdateState (hot loop, as Basilisk's below)"] = \
         _best(_gyro_loop_cost(run))
     frame_loop = _frame_loop_cost(run)

@@ -22,12 +22,12 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
-from adfusion.starid import rotations as rot
-from adfusion.starid.bleif import find_matches, stars_in_frame, tubsat_camera
-from adfusion.starid.bleif_catalog import PatternCatalog
-from adfusion.starid.catalog import Catalog
+from adfusion.starid.bleif.matcher import find_matches, stars_in_frame, tubsat_camera
+from adfusion.starid.bleif.patterns import PatternCatalog
+from adfusion.starid.catalog.stars import Catalog
 
 from adfusion.bench.machine import machine_info
+from adfusion.maths import rotations as rot
 
 
 def trial(pc, cam, rng, n, mag_limit, noise_px):

@@ -46,7 +46,7 @@ def _cam():
 
 def score_frame(corr_xy: np.ndarray, corr_icrs: np.ndarray, camera, q) -> tuple:
     """(projected − measured) pixel distances of the reference stars: (array, summary)."""
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
 
     d = np.linalg.norm(camera.vectors_to_pixels(rot.rotate(q, corr_icrs)) - corr_xy, axis=1)
     return d, {"median": round(float(np.median(d)), 3),
@@ -59,12 +59,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT / "tests"))
-    from adfusion.starid import rotations as rot
-    from adfusion.starid.calibrate import fit_camera_model
+    from adfusion.starid.camera.calibrate import fit_camera_model
     from adfusion.starid.joint_calibration import calibrate_frames
     from real_frames import grid_errors_deg, load_frames
 
     from adfusion import starid
+    from adfusion.maths import rotations as rot
 
     frames = load_frames(args.data.parents[1])
     corr = json.loads((args.data / "corr.json").read_text())

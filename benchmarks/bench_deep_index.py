@@ -1,7 +1,7 @@
 """Deep catalogues for narrow fields: index build time, peak memory, solve time.
 
 Case (issue 14, item 4): a 6°×4.5° camera (1280×960) with Hipparcos to V 9, thinned to
-the brightest stars per sky cell (:func:`adfusion.starid.coverage.uniform_coverage`). Each
+the brightest stars per sky cell (:func:`adfusion.starid.catalog.coverage.uniform_coverage`). Each
 case runs in a fresh process (so its peak RSS is its own) with an empty cache:
 
 * ``build``: catalogue load, selection, ``Solver`` construction (the index build),
@@ -46,12 +46,12 @@ WIDTH, HEIGHT = 1280, 960
 
 def run_case(case: dict[str, Any]) -> dict[str, Any]:
     """One case in this process (see the module docstring); returns its record."""
-    from adfusion.starid import rotations as rot
-    from adfusion.starid.coverage import uniform_coverage
-    from adfusion.starid.index import IndexTooLarge
-    from adfusion.starid.view import stars_in_view
+    from adfusion.starid.camera.view import stars_in_view
+    from adfusion.starid.catalog.coverage import uniform_coverage
+    from adfusion.starid.catalog.pair_index import IndexTooLarge
 
     from adfusion import starid
+    from adfusion.maths import rotations as rot
 
     w0, c0 = time.perf_counter(), time.process_time()
     cam = starid.Camera.pinhole(WIDTH, HEIGHT, case["fov_x_deg"])
@@ -108,7 +108,7 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
 def _corner_error_px(cam, q_sol, q_true) -> float:
     """Largest displacement of the frame's corners between two attitudes (pixels): the
     roll of a narrow field is loose about its boresight, but moves the corners little."""
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
 
     b = cam.pixels_to_vectors(cam.corners())
     xy = cam.vectors_to_pixels(rot.rotate(q_true, rot.rotate(rot.inverse(q_sol), b)))
@@ -140,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.case:
         print(json.dumps(run_case(json.loads(args.case))))
         return 0
-    from adfusion.starid.coverage import DEFAULT_STARS_PER_FOV
+    from adfusion.starid.catalog.coverage import DEFAULT_STARS_PER_FOV
 
     spf = args.stars_per_fov or DEFAULT_STARS_PER_FOV
     cases = [

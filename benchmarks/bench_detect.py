@@ -1,9 +1,9 @@
-"""Benchmark `starid.detect` against tetra3rs's centroid extractors on the real frames.
+"""Benchmark `starid.detection.detect` against tetra3rs's centroid extractors on the real frames.
 
 For each frame of both real sets, ``shared/data/real-images`` (1024×768 uint16 TIFF) and
 ``shared/data/real-images-cedar`` (13 JPEG frames, grey), this times, on the same array:
 
-* ``starid.detect`` with OpenCV's default thread count and with ``cv2.setNumThreads(1)``;
+* ``starid.detection.detect`` with OpenCV's default thread count and with ``cv2.setNumThreads(1)``;
 * ``tetra3rs.extract_centroids`` with its default threads and ``threads=1``;
 * ``tetra3rs.extract_centroids_fast`` likewise (a cruder single-pass extractor).
 
@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.starid.detect import detect
+from adfusion.starid.detection.detect import detect
 
 from adfusion.bench.machine import machine_info
 
@@ -190,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     if not frames:
         print(f"no image frames in {[str(d) for d in args.data]}", file=sys.stderr)
         return 2
-    from adfusion.starid.detect import read_image
+    from adfusion.starid.detection.image import read_image
 
     results = []
     for path in frames:

@@ -55,12 +55,11 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.starid import rotations as rot
-
 from adfusion.bench.machine import machine_info
 from adfusion.estimation.common import tangent_basis
 from adfusion.estimation.mekf import MEKF, process_noise, transition_matrix
 from adfusion.estimation.ukf import UKF
+from adfusion.maths import rotations as rot
 
 try:
     from ahrs.filters import EKF as AhrsEKF

@@ -43,10 +43,10 @@ import cv2
 import numpy as np
 from adfusion.logs import McapLogReader, topics
 from adfusion.sensors.scenarios import oedipus
-from adfusion.starid import rotations as rot
 
 from adfusion.app.camera_file import save_camera
 from adfusion.app.replay import ReplayOptions, replay, simulate
+from adfusion.maths import rotations as rot
 
 
 def _inputs(d: Path, duration_s: float):

@@ -36,14 +36,14 @@ from typing import Any
 
 import numpy as np
 from adfusion.sensors import scenarios
-from adfusion.starid import rotations as rot
-from adfusion.starid.catalog import Catalog
+from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
 from scipy.stats import chi2
 
 from adfusion.estimation.estimator import Estimator
 from adfusion.estimation.faults import WrongMatchInjector
 from adfusion.estimation.smoother import SmootherInput, smooth
+from adfusion.maths import rotations as rot
 
 
 def _attitude_error(q_est: np.ndarray, q_true: np.ndarray) -> np.ndarray:

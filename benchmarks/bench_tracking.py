@@ -2,7 +2,7 @@
 
 The inputs are the real case of the estimation issue: an OEDIPUS-like flight
 (:func:`sensors.scenarios.oedipus`: rendered, intensified 512×480 frames, 25.84°, V ≤ 5,
-30 fps, 0.5 rev/s spin, the tether in view), each frame run through :func:`starid.detect`.
+30 fps, 0.5 rev/s spin, the tether in view), each frame run through :func:`starid.detection.detect`.
 The priors come from :class:`adfusion.Estimator` itself — the gyro-propagated MEKF of the
 replay pipeline — recorded while it runs over the flight (``filter``), so the cone and the
 prior's error are what a running filter hands the solver. Two synthetic looser priors on the
@@ -13,7 +13,7 @@ fixes accepted (0 is the requirement), and solve time median / p95 / max
 (``Solution.time_s``, inside the call), best median of ``--rounds`` interleaved rounds; the
 lost-in-space time on the same detections is given as the ratio the prior buys.
 ``filter_numpy`` runs the filter's priors through the numpy tracking path (what the
-compiled path of :mod:`starid.tracking_kernels` replaces; the same outcomes,
+compiled path of :mod:`starid.tracking.kernels` replaces; the same outcomes,
 ``benchmarks/tracking_identical.py``), interleaved with the rest: its ratio to
 ``filter`` is the compiled path's speed-up in the same load.
 
@@ -40,13 +40,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from adfusion.sensors.scenarios import oedipus
-from adfusion.starid import rotations as rot
 from adfusion.starid.solver import Prior, Solver
 
 from adfusion import starid
 from adfusion.bench.machine import machine_info
 from adfusion.bench.starid import frame_error_px
 from adfusion.estimation.estimator import Estimator
+from adfusion.maths import rotations as rot
 
 # a fix is correct when no corner or the centre of the frame moves by more than this
 # (bench_starid's criterion: single fixes of these blurred, spinning frames are off by up

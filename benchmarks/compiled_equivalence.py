@@ -1,10 +1,11 @@
-"""The compiled lost-in-space frame (starid.frame_kernels.solve_frame: search,
+"""The compiled lost-in-space frame (starid.identify.frame_kernels.solve_frame: search,
 verification and final refit in one call) against the Python code on the `adfusion bench
 starid` frames.
 
 Every frame is solved twice by one solver — in one compiled call, then with the reference
 (``--reference python``: the compiled search with the verification and the refit in Python,
-starid.verify and starid.refine; ``--reference pieces``: the compiled search, verification
+starid.identify.verify and starid.identify.refine; ``--reference pieces``: the compiled search,
+verification
 and refit called one by one from Python, as before solve_frame) — and the solutions
 compared (:func:`differences`): ok, reason, path, patterns tried, matches,
 matching counter, note and p_false exactly; the attitude, residuals, covariance and noise

@@ -1,4 +1,4 @@
-"""Check that a change to `starid.detect` leaves its output on the real frames unchanged.
+"""Check that a change to `starid.detection.detect` leaves its output on the real frames unchanged.
 
 Records every field of ``detect(frame)`` (positions, fluxes, areas, peaks, order, rejections,
 background, noise, bright-pixel count, noise model) for each frame of both shared real sets
@@ -29,7 +29,9 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.starid.detect import Detections, detect, read_image
+from adfusion.starid.detection.detect import detect
+from adfusion.starid.detection.detections import Detections
+from adfusion.starid.detection.image import read_image
 
 _SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 DEFAULT_DATA = [_SHARED / "real-images", _SHARED / "real-images-cedar"]

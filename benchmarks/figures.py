@@ -73,7 +73,8 @@ def sweep_section(doc: dict[str, Any], command: str) -> str:
         "centroid lists; correct = frame corners within max(5 px, 4σ) of truth. *Tracking* is "
         f"ours with a filter-like prior (truth tilted by N(0, {cfg['prior_sigma_deg']:g}°) "
         "per axis); the peers have no tracking mode. The rate sweep renders 0.1 s exposures "
-        "streaked by the rate (random axis) and runs `starid.detect` on them. The full grid "
+        "streaked by the rate (random axis) and runs `starid.detection.detect` on them. "
+        "The full grid "
         "(`adfusion bench sweep`, 44 points) takes about "
         f"{bench_sweep.estimate_seconds(bench_sweep.SweepConfig(), 2) / 60:.0f} min on this "
         "machine; `--quick` (24 points, ≥ 1000 trials each) about "
@@ -498,7 +499,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="the page whose generated block is rewritten (docs/benchmarks.md)")
     args = p.parse_args(argv)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    from adfusion.starid.cache import cache_dir
+    from adfusion.starid.catalog.cache import cache_dir
 
     store = cache_dir() or RESULTS  # partial files: outside the checkout when possible
     run = set() if args.from_json else {s.strip() for s in args.only.split(",")}

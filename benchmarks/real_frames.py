@@ -19,10 +19,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from adfusion.starid import rotations as rot
-from adfusion.starid.detect import read_image
+from adfusion.starid.detection.image import read_image
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 SETS = ("real-images", "real-images-cedar")

@@ -42,10 +42,9 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from adfusion.starid import rotations as rot
-
 from adfusion.bench import campaign
 from adfusion.bench.renken_sim import PUBLISHED_ETA, eq_8_1_attitudes, renken_catalog, simulate_cell
+from adfusion.maths import rotations as rot
 
 TOLERANCES = (0.1, 0.2, 0.3)
 
@@ -70,7 +69,7 @@ _FIELDS = ("clear", "fewer_than_3", "miss", "unique", "multiple", "wrong_unique"
 
 def _catalog_and_index(mag: float, merge_px: float):
     """The cell's catalogue and pattern index, built once per worker process."""
-    from adfusion.starid.index import PatternIndex
+    from adfusion.starid.catalog.pair_index import PatternIndex
 
     def build():
         cat = renken_catalog(mag, merge_px=merge_px)
@@ -84,15 +83,15 @@ def two_star_counts(catalog, index, tol_deg: float, n_frames: int, seed: int) ->
     ``simulate_cell(…, n_frames, seed)`` draws: the catalogue pairs whose separation lies
     within ``tol_deg`` of the image pair's (linear pixel angle, 0.1 px centroids).
 
-    >>> from adfusion.starid.index import PatternIndex
+    >>> from adfusion.starid.catalog.pair_index import PatternIndex
     >>> cat = renken_catalog(3.0)
     >>> idx = PatternIndex.from_vectors(cat.vectors, np.radians(25.0))
     >>> c = two_star_counts(cat, idx, 0.1, 50, seed=1)
     >>> c["two_star"] == c["two_star_mc0"] + c["two_star_mc1"] + c["two_star_multiple"]
     True
     """
-    from adfusion.starid.camera import Camera
-    from adfusion.starid.view import stars_in_view
+    from adfusion.starid.camera.model import Camera
+    from adfusion.starid.camera.view import stars_in_view
 
     cam = Camera.renken()
     app, tol = np.radians(0.051), np.radians(tol_deg)

@@ -1,7 +1,7 @@
 """Same tracking results before and after a change: record every tracking outcome on a
 fixed set of OEDIPUS-like frames, then compare a later run against the record.
 
-What a speed-up of the tracking path (:mod:`starid.tracking`) must keep: for every frame
+What a speed-up of the tracking path (:mod:`starid.tracking.tracking`) must keep: for every frame
 and prior, the same accepted or refused outcome with the same reason, the same matches
 (detection index, catalogue id), the same ``p_false`` (bit for bit: it is a function of
 counts), and the same attitude, covariance and residuals up to rounding (a compiled
@@ -26,7 +26,7 @@ tracking path alone).
 Usage (from the repository root)::
 
     python benchmarks/tracking_identical.py record before.json [--seeds 1 2] [--duration 10]
-    # ... change starid/tracking.py ...
+    # ... change starid/tracking/tracking.py ...
     python benchmarks/tracking_identical.py compare before.json
 
 ``compare`` exits 1 and lists the first differences when any outcome differs.

@@ -33,9 +33,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from adfusion.starid.rotations import normalize, rotate, to_matrix
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import solve_ivp
+
+from adfusion.maths.rotations import normalize, rotate, to_matrix
 
 __all__ = ["Trajectory", "simulate_rate_profile", "simulate_rigid_body"]
 
@@ -163,7 +164,7 @@ def simulate_rate_profile(
     The callable should be smooth between output times (a step in ω is integrated as
     accurately as the tolerances allow; put output times at the steps for exactness).
     """
-    from adfusion.starid.rotations import exp_map, multiply
+    from adfusion.maths.rotations import exp_map, multiply
 
     t = _check_times(times)
     q0 = normalize(np.asarray(q0_body_icrs, dtype=np.float64).reshape(4))

@@ -41,7 +41,7 @@ Example:
 A streaked frame with a planet and a tether:
 
     >>> from adfusion.sensors.render import Planet, SensorModel, Tether, render_frame
-    >>> from adfusion.starid.rotations import q_cam_icrs_from_radec_roll, radec_to_vector
+    >>> from adfusion.maths.rotations import q_cam_icrs_from_radec_roll, radec_to_vector
     >>> cam = Camera.pinhole(512, 480, 25.8)
     >>> q = q_cam_icrs_from_radec_roll(*np.radians([10.0, 60.0, 0.0]))
     >>> stars = radec_to_vector(np.radians([10.0, 12.0]), np.radians([60.0, 62.0]))
@@ -60,7 +60,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from adfusion.starid.camera import Camera
+from adfusion.starid.camera.model import Camera
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import erf
 
@@ -518,7 +518,7 @@ def render_frame(
         planets: bright point sources at ICRS directions (:class:`Planet`).
         tethers: lines in the image (:class:`Tether`).
     """
-    from adfusion.starid.rotations import exp_map, rotate, to_matrix
+    from adfusion.maths.rotations import exp_map, rotate, to_matrix
 
     s = sensor or SensorModel()
     rng = np.random.default_rng(seed)

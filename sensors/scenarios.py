@@ -53,11 +53,11 @@ from adfusion.sensors.dynamics import Trajectory, simulate_rate_profile, simulat
 from adfusion.sensors.gyro import GyroModel
 from adfusion.sensors.magnetometer import MagnetometerModel, field_icrs_nT, r_icrs_ecef
 from adfusion.sensors.render import Intensifier, SensorModel, Tether, render_frame
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.catalog.stars import Catalog
 from numpy.typing import ArrayLike, NDArray
 
+from adfusion.maths import rotations as rot
 from adfusion.plain import to_jsonable
 
 __all__ = [
@@ -460,7 +460,7 @@ def oedipus(
       scale-factor or misalignment errors. **Magnetometer** 50 Hz: 30 nT noise.
 
     Spin and blur: at 1/60 s a star r px from the spin centre streaks ≈ 0.052·r px at
-    0.5 rev/s; ``starid.detect`` rejects streaks of ≳ 10 px as elongated, so faster spins
+    0.5 rev/s; ``starid.detection.detect`` rejects streaks of ≳ 10 px as elongated, so faster spins
     leave only the centre of the frame usable. Measured over 30 frames (seed 2; fraction of
     the stars in view detected within 2 px / frames identified by
     ``Solver(Catalog.hipparcos(5.5), camera)``): 0.5 rev/s 0.69 / 30 of 30 at 1/60 s and

@@ -16,7 +16,7 @@ Two pieces, both deterministic from a seed:
   reports the executed angle of each unit's last slew.
 
 Attitudes are ``q_cam_icrs`` (the body frame is the camera frame); rates rad/s in camera
-axes; satellite axes as :mod:`adfusion.starid.star_angles` (X_S = −y, Y_S = x, Z_S = z).
+axes; satellite axes as :mod:`adfusion.starid.bleif.star_angles` (X_S = −y, Y_S = x, Z_S = z).
 
 Example:
     >>> import numpy as np
@@ -36,9 +36,10 @@ import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
+from adfusion.starid.camera.model import Camera
 from numpy.typing import ArrayLike, NDArray
+
+from adfusion.maths import rotations as rot
 
 __all__ = ["AXES_CAM", "DRIFT_TAB_8_1_DEG_MIN", "SimulatedACS", "StarBlocks", "star_blocks"]
 

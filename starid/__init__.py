@@ -9,12 +9,14 @@ Example:
 
 from typing import TYPE_CHECKING, Any
 
-from adfusion.starid import rotations
-from adfusion.starid.camera import Camera
-from adfusion.starid.detect import Detections, detect
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.detection.detect import detect
+from adfusion.starid.detection.detections import Detections
+
+from adfusion.maths import rotations
 
 if TYPE_CHECKING:
-    from adfusion.starid.catalog import Catalog
+    from adfusion.starid.catalog.stars import Catalog
     from adfusion.starid.solver import Candidate, Prior, Solution, Solver
 
 __all__ = [
@@ -31,7 +33,7 @@ __all__ = [
 
 # The catalogue and the solver (scipy, numba) load on first use: a process that only
 # detects stars — replay's detection worker — starts ~0.4 s sooner without them.
-_LAZY = {"Catalog": "adfusion.starid.catalog", "Candidate": "adfusion.starid.solver",
+_LAZY = {"Catalog": "adfusion.starid.catalog.stars", "Candidate": "adfusion.starid.solver",
          "Prior": "adfusion.starid.solver", "Solution": "adfusion.starid.solver",
          "Solver": "adfusion.starid.solver"}
 

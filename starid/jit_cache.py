@@ -2,9 +2,9 @@
 compiles in — not only its own file.
 
 Why: numba keys a cached function by its own source file. A kernel that calls kernels of
-another module (:mod:`starid.frame_kernels` calls :mod:`starid.kernels`, which calls
-:mod:`starid.triangle_index` and :mod:`starid.tracking_kernels` and reads constants of
-:mod:`starid.index` and :mod:`starid.verify`) has their code compiled into its own;
+another module (:mod:`starid.identify.frame_kernels` calls the search, check and fit
+kernels of :mod:`starid.identify`, which read constants of :mod:`starid.catalog.pair_index`
+and :mod:`starid.catalog.triangle_index`) has their code compiled into its own;
 when only the other module changes — an upgrade, a ``git pull`` — numba still loads the
 old compiled code and runs it
 with the new Python around it. That happened here: the sky map's layout changed in
@@ -18,9 +18,10 @@ Use it as ``numba.njit(cache=True)`` in a module of :data:`DEPENDS`
 (``_jit = njit_cached(nogil=True)``; elsewhere it caches as numba does):
 
 Example:
-    >>> from adfusion.starid import frame_kernels, jit_cache
-    >>> jit_cache.DEPENDS["frame_kernels.py"][:2]
-    ('frame_kernels.py', 'kernels.py')
+    >>> from adfusion.starid import jit_cache
+    >>> from adfusion.starid.identify import frame_kernels
+    >>> jit_cache.DEPENDS["identify/frame_kernels.py"][:2]
+    ('identify/frame_kernels.py', 'identify/check_kernels.py')
     >>> type(frame_kernels.solve_frame._cache._impl.locator).__name__
     '_DependsLocator'
 """
@@ -36,27 +37,47 @@ from numba.core import caching
 
 __all__ = ["DEPENDS", "njit_cached", "source_stamp"]
 
-#: the modules (files beside it) each kernel module compiles in, itself first; a module
-#: not named here is keyed by its own file, as numba does
+#: the modules each kernel module compiles in (paths below the starid folder), itself first;
+#: a module not named here is keyed by its own file, as numba does
+_IDX = ("catalog/pair_index.py", "catalog/triangle_index.py")
 DEPENDS: dict[str, tuple[str, ...]] = {
-    "kernels.py": ("kernels.py", "triangle_index.py", "index.py", "verify.py",
-                   "tracking_kernels.py"),
-    "frame_kernels.py": ("frame_kernels.py", "kernels.py", "triangle_index.py", "index.py",
-                         "verify.py", "tracking_kernels.py"),
+    "identify/match_kernels.py": ("identify/match_kernels.py", *_IDX),
+    "identify/check_kernels.py": ("identify/check_kernels.py", "identify/match_kernels.py",
+                                  *_IDX),
+    "identify/search_kernels.py": ("identify/search_kernels.py", "identify/check_kernels.py",
+                                   "identify/match_kernels.py", *_IDX),
+    "identify/fit_kernels.py": ("identify/fit_kernels.py", "identify/check_kernels.py",
+                                "identify/match_kernels.py", *_IDX),
+    "identify/frame_kernels.py": ("identify/frame_kernels.py", "identify/check_kernels.py",
+                                  "identify/fit_kernels.py", "identify/match_kernels.py",
+                                  "identify/search_kernels.py", *_IDX),
+    "tracking/kernels.py": ("tracking/kernels.py", "identify/fit_kernels.py",
+                            "identify/check_kernels.py", "identify/match_kernels.py", *_IDX),
 }
+
+
+def _key_of(py_file: str) -> tuple[str, str]:
+    """(the starid folder, the :data:`DEPENDS` key) of ``py_file``; the key is the file's
+    name alone when it is none of them."""
+    path = os.path.abspath(py_file).replace(os.sep, "/")
+    for key in DEPENDS:
+        if path.endswith("/" + key):
+            return path[: -len(key) - 1], key
+    folder, name = os.path.split(path)
+    return folder, name
 
 
 def source_stamp(py_file: str) -> str:
     """SHA-256 of the contents of ``py_file``'s :data:`DEPENDS` (or of the file alone).
 
-    >>> import adfusion.starid.kernels as k
-    >>> source_stamp(k.__file__) != source_stamp(k.__file__.replace("kernels", "index"))
+    >>> import adfusion.starid.identify.frame_kernels as k
+    >>> source_stamp(k.__file__) != source_stamp(k.__file__.replace("frame_", "fit_"))
     True
     """
-    folder, name = os.path.split(os.path.abspath(py_file))
+    root, key = _key_of(py_file)
     h = hashlib.sha256()
-    for dep in DEPENDS.get(name, (name,)):
-        with open(os.path.join(folder, dep), "rb") as f:
+    for dep in DEPENDS.get(key, (key,)):
+        with open(os.path.join(root, dep), "rb") as f:
             h.update(dep.encode() + b"\0" + f.read())
     return h.hexdigest()
 
@@ -70,7 +91,7 @@ class _DependsLocator(caching._CacheLocator):
     :func:`source_stamp` and the module's import name added to its source stamp.
 
     The name, because a cached function's environment names its module, and loading it
-    imports that module: the same file imported under another name (``starid.kernels``,
+    imports that module: the same file imported under another name (``starid.identify.kernels``,
     as ``pytest --doctest-modules starid/`` imports it beside ``adfusion.starid``) wrote
     entries that every later ``adfusion`` process loaded and failed on (``No module named
     'starid'``), until the cache was cleared."""
@@ -94,10 +115,10 @@ class _DependsLocator(caching._CacheLocator):
 
     @classmethod
     def from_function(cls, py_func, py_file):
-        folder, name = os.path.split(os.path.abspath(py_file))
+        root, key = _key_of(py_file)
         # numba's own locators where the sources are not plain files (a zip, a frozen app)
-        if name not in DEPENDS or folder != _HERE or not all(
-                os.path.isfile(os.path.join(folder, dep)) for dep in DEPENDS[name]):
+        if key not in DEPENDS or root != _HERE.replace(os.sep, "/") or not all(
+                os.path.isfile(os.path.join(root, dep)) for dep in DEPENDS[key]):
             return None
         for other in _IMPL._locator_classes:
             if other is not cls:

@@ -6,7 +6,7 @@ What ``adfusion calibrate FRAMES… -o camera.yaml`` runs:
 2. with its attitude, the catalogue (deeper than the identification's: fainter stars
    fill the frame's corners, where distortion shows) is projected into the frame and
    each star paired with the nearest detection, one to one, within a radius;
-3. :func:`starid.calibrate.fit_camera_model` fits focal length, principal point, pixel
+3. :func:`starid.camera.calibrate.fit_camera_model` fits focal length, principal point, pixel
    aspect and OpenCV distortion jointly over all frames (one attitude per frame);
 4. steps 2–3 repeat with the fitted camera, the radius shrinking to 5 σ of the
    residuals (never below 1.5 px), so wrong pairs drop out and stars the nominal camera
@@ -18,9 +18,9 @@ residuals; ``sigma_px`` is the a-posteriori centroid noise of the final fit.
 Example (synthetic: the same lens seen at three attitudes):
     >>> import numpy as np
     >>> from adfusion.starid import Camera, rotations as rot
-    >>> from adfusion.starid.catalog import Catalog
+    >>> from adfusion.starid.catalog.stars import Catalog
     >>> from adfusion.starid.joint_calibration import calibrate_frames
-    >>> from adfusion.starid.view import stars_in_view
+    >>> from adfusion.starid.camera.view import stars_in_view
     >>> cat, bright = Catalog.hipparcos(mag_limit=6.0), Catalog.hipparcos(mag_limit=5.0)
     >>> true = Camera(np.array([[1500.0, 0, 500], [0, 1500.0, 390], [0, 0, 1]]),
     ...               [-0.2, 0.05, 0.0, 0.0, 0.0], 1024, 768)
@@ -39,11 +39,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from adfusion.starid import rotations as rot
-from adfusion.starid.calibrate import CameraModelFit, fit_camera_model
-from adfusion.starid.camera import Camera
+from adfusion.starid.camera.calibrate import CameraModelFit, fit_camera_model
+from adfusion.starid.camera.model import Camera
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
+
+from adfusion.maths import rotations as rot
 
 __all__ = ["DEFAULT_TERMS", "JointCalibration", "calibrate_frames"]
 

@@ -5,9 +5,9 @@ verification stage of our own):
 
 1. take the brightest ``n_max`` detections (3…6) as the pattern, closest pair first;
 2. enumerate every catalogue assignment consistent with all pair distances
-   (:mod:`starid.nstar`; the count is Renken's ``matching_counter``);
+   (:mod:`starid.identify.nstar`; the count is Renken's ``matching_counter``);
 3. verify each assignment: Wahba attitude, project the catalogue, match the other
-   detections, and compute the false-match probability (:mod:`starid.verify`);
+   detections, and compute the false-match probability (:mod:`starid.identify.verify`);
 4. accept when exactly one attitude survives below ``p_false_max``; several surviving
    attitudes → ``not ok``, reason ``ambiguous``, all listed in ``candidates``;
 5. otherwise Renken's Not-Modus: every (n−1)-star sub-pattern, then every (n−2)-star one
@@ -44,24 +44,18 @@ import time
 from dataclasses import replace
 
 import numpy as np
-from adfusion.starid import frame_kernels, kernels
-from adfusion.starid import rotations as rot
-from adfusion.starid.bleif_bridge import BleifBridge
-from adfusion.starid.camera import Camera
-from adfusion.starid.index import PatternIndex, catalog_cache_tag
-from adfusion.starid.lost_in_space import (
-    EVIDENCE_RATIO,
-    LostInSpace,
-    PairWindows,
-    Search,
-    input_bounds,
-)
-from adfusion.starid.nstar import Pattern, match_faithful, match_indexed
-from adfusion.starid.refine import Refinement
-from adfusion.starid.solution import Candidate, Prior, Solution
-from adfusion.starid.tracking import Tracking, corner_sigma_px, pair_within
-from adfusion.starid.triad_bridge import TriadBridge
-from adfusion.starid.verify import (
+from adfusion.starid.bleif.bridge import BleifBridge
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.camera.view import stars_in_view
+from adfusion.starid.catalog.pair_index import PatternIndex, catalog_cache_tag
+from adfusion.starid.identify import frame_kernels, kernels
+from adfusion.starid.identify.candidates import EVIDENCE_RATIO
+from adfusion.starid.identify.lost_in_space import LostInSpace
+from adfusion.starid.identify.nstar import Pattern, match_faithful, match_indexed
+from adfusion.starid.identify.refine import Refinement
+from adfusion.starid.identify.search_state import PairWindows, Search, input_bounds
+from adfusion.starid.identify.solution import Candidate, Prior, Solution
+from adfusion.starid.identify.verify import (
     Verification,
     distinct_candidates,
     keeps_pattern,
@@ -70,9 +64,12 @@ from adfusion.starid.verify import (
     rotation_from_pairs,
     variance_factor,
 )
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.tracking.tracking import Tracking, corner_sigma_px, pair_within
+from adfusion.starid.triad.bridge import TriadBridge
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
+
+from adfusion.maths import rotations as rot
 
 __all__ = ["Candidate", "Prior", "Solution", "Solver"]
 
@@ -115,7 +112,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             ``"auto"`` (default) fits when the FOV is uncertain, ``"none"`` never,
             ``"focal"`` the focal length only, ``"full"`` always the full model selected
             by the data (focal length, pixel aspect, principal point, OpenCV radial and
-            tangential distortion; :func:`starid.calibrate.fit_camera_model`).
+            tangential distortion; :func:`starid.camera.calibrate.fit_camera_model`).
         faithful: use Renken's reference nested loops instead of the index (slow).
         n_bands: Renken's declination sub-catalogues (1 = none); results are identical.
         dec_check: Renken's declination-difference pre-check (faithful mode only).
@@ -132,7 +129,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             usable: 1e-4 by default.
         whole_streak_px: with a prior's ``smear_cam_rad``, streaks up to this long (px)
             are taken as detected whole and a longer one's pieces as at least this long
-            (:func:`starid.attitude.refine_streaked`). 20 px keeps the arcs of a spinning
+            (:func:`adfusion.maths.attitude.refine_streaked`). 20 px keeps the arcs of a spinning
             payload (up to 18 px on the OEDIPUS-like log, detected whole: with 8 px the
             60 s replay's RMS error grew from 0.0202° to 0.0224°) and catches the 34–68 px
             streaks of the rate sweep, which break into pieces (an isotropic fit accepted
@@ -259,8 +256,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self._pattern_lists: dict[tuple[int, ...], tuple] = {}
         # the search runs compiled, except with the matchers kept in numpy
         self._compiled = not (faithful or self.n_bands > 1)
-        # a candidate's verification with a known camera (starid.verify) and the final
-        # refit of a fixed undistorted one (starid.refine) run compiled; False: in Python
+        # a candidate's verification with a known camera (starid.identify.verify) and the final
+        # refit of a fixed undistorted one (starid.identify.refine) run compiled; False: in Python
         self._compiled_verify = self._compiled_refine = True
         self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
 
@@ -422,11 +419,11 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
 
     def warm_up(self, triangles: bool = True) -> bool:
         """Pay the lost-in-space search's one-time costs now rather than in the first
-        frames: its compiled kernels (:mod:`starid.kernels`: search, verification, final
+        frames: its compiled kernels (:mod:`starid.identify.kernels`: search, verification, final
         refit) load from numba's cache in ~1 s — or, the first time after an install unless
-        ``python -m adfusion.starid.kernels`` prepared it, compile in 15–60 s — on their first
+        ``python -m adfusion.starid.prepare`` prepared it, compile in 15–60 s — on their first
         call in a process, each detection count's pattern order is computed on first
-        use, and the catalogue's triangles (:mod:`starid.triangle_index`) are built —
+        use, and the catalogue's triangles (:mod:`starid.catalog.triangle_index`) are built —
         ~6 s the first time for V < 6 in a 15° field — or loaded from the cache
         (~0.2 s; ``triangles=False`` leaves that to the first frame that needs more than
         Renken's patterns — a command that solves a few frames may never need it). Call
@@ -474,7 +471,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
 
     def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Catalogue ids and pixel positions of the catalogue stars inside the frame at an
-        attitude (``q_cam_icrs``), brightest first: :func:`adfusion.starid.view.stars_in_view`
+        attitude (``q_cam_icrs``), brightest first:
+        :func:`adfusion.starid.camera.view.stars_in_view`
         for this solver's catalogue and camera, with ids instead of row indices.
 
         >>> from adfusion import starid

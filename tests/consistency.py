@@ -6,10 +6,10 @@ of the optimal estimate (Wahba/SVD over every true star of the frame, correctly 
 from __future__ import annotations
 
 import numpy as np
-from adfusion.starid import rotations as rot
-from adfusion.starid.attitude import wahba
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
+from adfusion.maths.attitude import wahba
 
 
 def run(solver, noise_px: float, n_frames: int, seed: int, n_false: int = 0) -> dict:

@@ -15,9 +15,10 @@ from pathlib import Path
 
 import numpy as np
 from adfusion.starid import Camera
-from adfusion.starid import rotations as rot
-from adfusion.starid.calibrate import CameraFit, fit_camera
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.camera.calibrate import CameraFit, fit_camera
+from adfusion.starid.camera.view import stars_in_view
+
+from adfusion.maths import rotations as rot
 
 OBS_EPOCH = 2019.575  # 2019-07-29
 

@@ -12,11 +12,11 @@ import pytest
 pytest.importorskip("Basilisk", reason="Basilisk is the optional extra 'bsk'")
 
 from adfusion.logs import LogWriter, McapLogReader
-from adfusion.starid import rotations as rot
 from Basilisk.utilities import RigidBodyKinematics as rbk
 
 from adfusion.basilisk import frames, run_loop, scenario
 from adfusion.basilisk.acs import attitude_errors_rad, summarize
+from adfusion.maths import rotations as rot
 
 
 def test_mrp_conversion_matches_basilisk_kinematics() -> None:

@@ -86,9 +86,8 @@ def test_error_bound_math(doc: dict) -> None:
 def test_streaked_frame_scored_along_the_exposure() -> None:
     """A fix equal to the attitude at the end of the exposure (a fragment's instant) is the
     right identification: correct, but counted as off mid-exposure."""
-    from adfusion.starid import rotations as rot
-
     from adfusion import starid
+    from adfusion.maths import rotations as rot
 
     cat = bs.load_catalog(5.0, 2025.0)
     cam = starid.Camera.pinhole(512, 384, fov_x_deg=15.0)

@@ -13,8 +13,7 @@ import math
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.bleif import (
+from adfusion.starid.bleif.matcher import (
     KX_DEG,
     T_PIX,
     CollinearTripleError,
@@ -28,9 +27,11 @@ from adfusion.starid.bleif import (
     stars_in_frame,
     tubsat_camera,
 )
-from adfusion.starid.bleif_catalog import PatternCatalog, direction_angle_deg
-from adfusion.starid.catalog import Catalog
-from adfusion.starid.star_angles import star_angles_from_q_cam_icrs
+from adfusion.starid.bleif.patterns import PatternCatalog, direction_angle_deg
+from adfusion.starid.bleif.star_angles import star_angles_from_q_cam_icrs
+from adfusion.starid.catalog.stars import Catalog
+
+from adfusion.maths import rotations as rot
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,11 @@
-"""The camera-model fit (starid.calibrate): its least squares against scipy's, and its lens
+"""The camera-model fit (starid.camera.calibrate): its least squares against scipy's, and its lens
 model against frames it never saw (astrometry.net's matched stars of the FLIR set)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from adfusion.starid.calibrate import _levenberg_marquardt, fit_camera_model
+from adfusion.starid.camera.calibrate import _levenberg_marquardt, fit_camera_model
 from real_frames import corr_frames
 from scipy.optimize import least_squares
 

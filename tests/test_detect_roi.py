@@ -1,4 +1,4 @@
-"""Detection in windows around predicted stars (starid.detect_roi), against the truth of
+"""Detection in windows around predicted stars (starid.detection.windows), against the truth of
 analytic and rendered frames."""
 
 from __future__ import annotations
@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from adfusion.sensors.render import SensorModel, render_frame
-from adfusion.starid import rotations as rot
-from adfusion.starid.detect_roi import TrackingWindows, detect_windows
+from adfusion.starid.detection.windows import TrackingWindows, detect_windows
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
 
 
 def _gauss(img, x, y, total, sigma=1.2):

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from adfusion.sensors.dynamics import simulate_rate_profile
 from adfusion.sensors.gyro import GyroModel
-from adfusion.starid import rotations as rot
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.camera.view import stars_in_view
 
 from adfusion import starid
 from adfusion.estimation.estimator import Estimator
+from adfusion.maths import rotations as rot
 
 FPS = 30.0
 GYRO_HZ = 200.0
@@ -141,7 +141,7 @@ def test_tracking_frames_detected_around_the_prior_the_solver_tracks_from() -> N
     import copy
 
     from adfusion.sensors.render import SensorModel, render_frame
-    from adfusion.starid.detect_roi import TrackingWindows
+    from adfusion.starid.detection.windows import TrackingWindows
 
     cat = starid.Catalog.hipparcos(mag_limit=6.0)
     cam = starid.Camera.pinhole(512, 512, 20.0)

@@ -8,12 +8,12 @@ import math
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
 from scipy.spatial.transform import Rotation
 
 from adfusion.estimation.mekf import MEKF
 from adfusion.estimation.ratefilter import RateMEKF
 from adfusion.estimation.ukf import UKF
+from adfusion.maths import rotations as rot
 
 Q0 = rot.normalize([0.9, 0.1, -0.3, 0.2])
 SIGMA = math.radians(1.0)

@@ -165,7 +165,7 @@ def test_dropped_inputs_are_counted_recorded_and_reported(sim, tmp_path, capsys)
 
 
 def test_undecodable_and_mis_sized_frames_are_reported(tmp_path):
-    from adfusion.starid.camera import Camera
+    from adfusion.starid.camera.model import Camera
 
     cam = Camera.pinhole(64, 48, 20.0)
     cfg = {"q_body_cam": [1.0, 0.0, 0.0, 0.0], "mag_limit": 5.0}

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from adfusion.starid import frame_kernels, kernels
+from adfusion.starid.identify import frame_kernels, kernels
 from test_solver import sky_frame
 
 from adfusion import starid
@@ -186,7 +186,7 @@ def test_the_packed_result_reads_back_as_the_kernels_own(cat, monkeypatch):
     """solve_frame_packed hands solve_frame's result to Python as two flat arrays; unpack
     must give back every field — pairs with the catalogue's ids, weak rows — for frames
     identified, refitted with pairs rejected, and weak."""
-    from adfusion.starid import frame_kernels as fk
+    from adfusion.starid.identify import frame_kernels as fk
     calls = []
     real = fk.solve_frame_packed
 
@@ -474,7 +474,7 @@ def test_the_compiled_paths_solutions_are_made_as_their_classes_make_them(cat):
     (solution.made): every field present, each the object __init__ would keep."""
     import dataclasses
 
-    from adfusion.starid.solution import Candidate, Solution
+    from adfusion.starid.identify.solution import Candidate, Solution
 
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam)
@@ -499,7 +499,7 @@ def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat, monkeyp
     import dataclasses
     import pickle
 
-    from adfusion.starid import lost_in_space
+    from adfusion.starid.identify import lost_in_space
 
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam)
@@ -545,7 +545,7 @@ def test_a_result_longer_than_the_lean_paths_arrays_grows_them(cat, monkeypatch)
     """The lean call writes its result into the thread's arrays; a result that does not
     fit has them made as long as it needs and the frame solved again: the same
     solution, on a thread's first call too."""
-    from adfusion.starid import lost_in_space
+    from adfusion.starid.identify import lost_in_space
 
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam)
@@ -627,7 +627,7 @@ def test_a_sky_map_of_other_cells_per_edge_finds_the_same_stars(cat, monkeypatch
     """``kernels.SKY_CELLS`` set before a solver is made: its sky map is drawn at those
     cells per face edge and read at them (the map's default cells were bound when
     ``sky_map`` was defined, so a map drawn at 1024 was read at 512 and missed stars)."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
 
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     frames = [np.ascontiguousarray(sky_frame(cat, cam, np.random.default_rng(s), n_false=2)[0])

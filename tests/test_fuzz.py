@@ -157,7 +157,7 @@ def test_the_long_fuzz_runs_wrong_attitudes_are_not_accepted(case):
 
 def _fuzz_frame(solver, seed, n_false, drop_frac, sigma_px):
     """The detections and truth of fuzz.check_solver's frame for ``seed`` (its draws)."""
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
 
     cam = solver.camera
     rng = np.random.default_rng(seed)
@@ -174,8 +174,9 @@ def test_a_prior_20_sigma_wrong_is_overruled_by_the_stars_it_leaves_unexplained(
     """Prior 1° off at σ 0.05° over a 30° frame of 55 stars: tracking alone fitted 4 chance
     pairs near it (0.87° off, p_false 1.1e-6). The solver now hands back the lost-in-space
     fix of the whole frame, near the truth, and says the prior was contradicted."""
-    from adfusion.starid import rotations as rot
     from adfusion.starid.solver import Prior
+
+    from adfusion.maths import rotations as rot
 
     solver = fuzz.SolverBank(fovs_deg=(30.0,)).get(30.0)
     dets, q, rng = _fuzz_frame(solver, 3704101671, 11, 0.0, 1.5)
@@ -192,7 +193,7 @@ def test_a_lost_in_space_fix_explaining_few_detections_yields_to_the_rest():
     """11 false stars, 70 % of the stars dropped: the first accepted candidate (a 5-star
     sub-pattern with a false star in it) explained 7 of 30 detections, 162° off. The rest
     of the frame holds the right attitude with far stronger evidence; it wins, named."""
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
 
     solver = fuzz.SolverBank(fovs_deg=(20.0,)).get(20.0)
     dets, q, _ = _fuzz_frame(solver, 1875421584, 11, 0.7, 0.1)

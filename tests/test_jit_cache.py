@@ -7,27 +7,34 @@ import ast
 import shutil
 from pathlib import Path
 
-from adfusion.starid import frame_kernels, jit_cache, kernels
+from adfusion.starid import jit_cache
+from adfusion.starid.identify import frame_kernels, kernels
 
-STARID = Path(kernels.__file__).parent
+STARID = Path(jit_cache.__file__).parent
+FRAME = "identify/frame_kernels.py"
+
+
+def _copy(name: str, to: Path) -> None:
+    (to / name).parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(STARID / name, to / name)
 
 
 def test_a_change_to_the_kernels_a_module_calls_makes_its_cache_stale(tmp_path):
     """frame_kernels compiles kernels' code into its own: editing kernels.py alone (what
     moved the sky map's layout under a cached frame_kernels) must change frame_kernels'
     stamp — numba's own stamp, its file's hash, does not."""
-    for name in jit_cache.DEPENDS["frame_kernels.py"]:
-        shutil.copy(STARID / name, tmp_path / name)
-    before = jit_cache.source_stamp(str(tmp_path / "frame_kernels.py"))
-    own = (tmp_path / "frame_kernels.py").read_bytes()
-    with open(tmp_path / "kernels.py", "a") as f:
+    for name in jit_cache.DEPENDS[FRAME]:
+        _copy(name, tmp_path)
+    before = jit_cache.source_stamp(str(tmp_path / FRAME))
+    own = (tmp_path / FRAME).read_bytes()
+    with open(tmp_path / "identify/match_kernels.py", "a") as f:
         f.write("\n# an edit\n")
-    assert jit_cache.source_stamp(str(tmp_path / "frame_kernels.py")) != before
-    assert (tmp_path / "frame_kernels.py").read_bytes() == own
-    with open(tmp_path / "verify.py", "a") as f:  # a constant kernels.py reads
+    assert jit_cache.source_stamp(str(tmp_path / FRAME)) != before
+    assert (tmp_path / FRAME).read_bytes() == own
+    with open(tmp_path / "catalog/pair_index.py", "a") as f:  # a constant the kernels read
         f.write("\n# an edit\n")
-    assert jit_cache.source_stamp(str(tmp_path / "kernels.py")) != \
-        jit_cache.source_stamp(str(STARID / "kernels.py"))
+    assert jit_cache.source_stamp(str(tmp_path / "identify/match_kernels.py")) != \
+        jit_cache.source_stamp(str(STARID / "identify/match_kernels.py"))
 
 
 def test_the_kernels_are_cached_with_their_dependencies_in_the_stamp():
@@ -47,7 +54,7 @@ def test_the_same_file_under_another_import_name_is_cached_apart():
     import name is part of the stamp, so neither loads the other's entries."""
     py_func = frame_kernels.solve_frame.py_func
     twin = type(py_func)(py_func.__code__, py_func.__globals__, py_func.__name__)
-    twin.__module__ = "starid.frame_kernels"
+    twin.__module__ = "starid.identify.frame_kernels"
     here = jit_cache._DependsLocator.from_function(py_func, py_func.__code__.co_filename)
     there = jit_cache._DependsLocator.from_function(twin, py_func.__code__.co_filename)
     assert here.get_cache_path() == there.get_cache_path()
@@ -59,7 +66,8 @@ def test_every_module_a_kernel_module_imports_is_in_its_stamp():
     in: each such module must be among the file's DEPENDS."""
     for name, deps in jit_cache.DEPENDS.items():
         tree = ast.parse((STARID / name).read_text())
-        imported = {node.module.rsplit(".", 1)[1] + ".py" for node in tree.body
+        imported = {node.module[len("adfusion.starid."):].replace(".", "/") + ".py"
+                    for node in tree.body
                     if isinstance(node, ast.ImportFrom) and node.module
                     and node.module.startswith("adfusion.starid.")}
         imported.discard("jit_cache.py")
@@ -69,15 +77,15 @@ def test_every_module_a_kernel_module_imports_is_in_its_stamp():
 def test_sources_that_are_no_plain_files_keep_numbas_own_cache(tmp_path, monkeypatch):
     """In a zip or a frozen application the modules beside a kernel module cannot be
     read: numba's own locators take over (the import failed with NotADirectoryError)."""
-    shutil.copy(STARID / "frame_kernels.py", tmp_path / "frame_kernels.py")
+    _copy(FRAME, tmp_path)
     monkeypatch.setattr(jit_cache, "_HERE", str(tmp_path))
     py_func = frame_kernels.solve_frame.py_func
     assert jit_cache._DependsLocator.from_function(
-        py_func, str(tmp_path / "frame_kernels.py")) is None
-    for name in jit_cache.DEPENDS["frame_kernels.py"]:
-        shutil.copy(STARID / name, tmp_path / name)
+        py_func, str(tmp_path / FRAME)) is None
+    for name in jit_cache.DEPENDS[FRAME]:
+        _copy(name, tmp_path)
     assert jit_cache._DependsLocator.from_function(
-        py_func, str(tmp_path / "frame_kernels.py")) is not None
+        py_func, str(tmp_path / FRAME)) is not None
 
 
 def test_warm_up_loads_every_kernel_a_frame_of_noise_needs():
@@ -88,7 +96,7 @@ def test_warm_up_loads_every_kernel_a_frame_of_noise_needs():
 
     code = (
         "from adfusion import starid\n"
-        "from adfusion.starid import frame_kernels as f\n"
+        "from adfusion.starid.identify import frame_kernels as f\n"
         "s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),"
         " starid.Camera.pinhole(1024, 768, 15.0))\n"
         "s.warm_up(triangles=False)\n"

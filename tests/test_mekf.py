@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
 from scipy.linalg import expm
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -35,6 +34,7 @@ from adfusion.estimation.mekf import (
     process_noise,
     transition_matrix,
 )
+from adfusion.maths import rotations as rot
 
 # --- Crassidis & Junkins Ex. 7.1 -------------------------------------------------------
 SIGMA_V = math.sqrt(10.0) * 1e-7  # rad/s^½, angle random walk

@@ -9,18 +9,18 @@ import cv2
 import numpy as np
 import pytest
 from adfusion.sensors.tubsat import star_blocks
-from adfusion.starid import rotations as rot
-from adfusion.starid.bleif import find_matches, stars_in_frame, tubsat_camera
-from adfusion.starid.bleif_catalog import PatternCatalog
-from adfusion.starid.catalog import Catalog
-from adfusion.starid.operator import IdentificationSession, overlay_png, suggest_stars
-from adfusion.starid.star_angles import (
+from adfusion.starid.bleif.matcher import find_matches, stars_in_frame, tubsat_camera
+from adfusion.starid.bleif.operator import IdentificationSession, overlay_png, suggest_stars
+from adfusion.starid.bleif.patterns import PatternCatalog
+from adfusion.starid.bleif.star_angles import (
     q_cam_icrs_from_star_angles,
     star_angles_from_q_cam_icrs,
 )
+from adfusion.starid.catalog.stars import Catalog
 
 from adfusion import starid
 from adfusion.estimation.estimator import Estimator
+from adfusion.maths import rotations as rot
 
 
 @pytest.fixture(scope="module")

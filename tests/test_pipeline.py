@@ -180,9 +180,9 @@ def test_stars_in_view_are_counted_as_stars_in_view_counts_them(mag_limit):
     """The summary's batch count of catalogue stars in view equals Solver.stars_in_view
     frame by frame (random attitudes, so counts around the threshold of 3 occur)."""
     from adfusion.starid import Camera, Catalog, Solver
-    from adfusion.starid import rotations as rot
 
     from adfusion.app.replay.sinks import InViewCounter, ReplaySummary
+    from adfusion.maths import rotations as rot
 
     solver = Solver(Catalog.hipparcos(mag_limit=mag_limit),
                     Camera.pinhole(512, 480, 12.0), cache=False)

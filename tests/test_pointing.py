@@ -13,8 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.star_angles import (
+from adfusion.starid.bleif.star_angles import (
     q_cam_icrs_from_star_angles,
     star_angles_from_q_cam_icrs,
     t_sq,
@@ -23,6 +22,7 @@ from adfusion.starid.star_angles import (
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
+from adfusion.maths import rotations as rot
 from adfusion.pointing.commands import CommandBook, DeadReckoning
 from adfusion.pointing.drift import DriftModel, boresight_sigma_deg, drift_estimator, time_left_s
 from adfusion.pointing.passplan import (

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera_file import read_camera_yaml, write_camera_yaml
-from adfusion.starid.wcs import camera_wcs, wcs_header
+from adfusion.starid.camera.files import read_camera_yaml, write_camera_yaml
+from adfusion.starid.camera.wcs import camera_wcs, wcs_header
 
 from adfusion import starid
 from adfusion.app.cli import main
+from adfusion.maths import rotations as rot
 
 astropy_wcs = pytest.importorskip("astropy.wcs")
 fits = pytest.importorskip("astropy.io.fits")
@@ -156,7 +156,7 @@ def test_calibrate_real_frames_beats_the_pinhole_on_astrometry_net_stars(calibra
     positions and centroids) land closer through the calibrated camera than through the
     pinhole with a fitted focal length, frame by frame; and the radial term agrees with a
     fit to astrometry.net's stars alone."""
-    from adfusion.starid.calibrate import fit_camera_model
+    from adfusion.starid.camera.calibrate import fit_camera_model
 
     rc, path = calibrated
     assert rc == 0

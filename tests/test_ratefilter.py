@@ -19,11 +19,11 @@ import math
 import numpy as np
 import pytest
 from adfusion.sensors.dynamics import simulate_rigid_body
-from adfusion.starid import rotations as rot
 from scipy.linalg import expm
 
 from adfusion.estimation.mekf import UpdateResult
 from adfusion.estimation.ratefilter import RateMEKF, rate_process_noise, rate_transition_matrix
+from adfusion.maths import rotations as rot
 
 INERTIA = np.diag([40.0, 41.0, 4.0])
 OMEGA0 = [0.05, 0.0, 3.14]

@@ -8,9 +8,9 @@ import itertools
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.index import PatternIndex
-from adfusion.starid.nstar import (
+from adfusion.starid.camera.view import stars_in_view
+from adfusion.starid.catalog.pair_index import PatternIndex
+from adfusion.starid.identify.nstar import (
     Pattern,
     WorkBudgetExceeded,
     closest_pair_first,
@@ -19,13 +19,13 @@ from adfusion.starid.nstar import (
     match_faithful,
     match_indexed,
 )
-from adfusion.starid.renken import affine_attitude, affine_coefficients, linear_pattern
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.identify.renken import affine_attitude, affine_coefficients, linear_pattern
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from adfusion import starid
 from adfusion.bench.renken_sim import eq_8_1_attitudes
+from adfusion.maths import rotations as rot
 
 APP = np.radians(0.051)  # Renken's angle per pixel
 # B1950 → J2000 (FK4 → FK5 without E-terms); Renken's attitudes are B1950
@@ -372,10 +372,11 @@ def test_simulation_eta_matches_tab_8_22_to_8_28(mag, tol, published, bound):
 @settings(max_examples=60, deadline=None)
 def test_compiled_match_gives_the_rows_of_match_indexed(small_sky, seed, n, tol_deg,
                                                         undecided):
-    """adfusion.starid.kernels.match (the solver's matcher): the rows match_indexed gives, in the
+    """adfusion.starid.identify.kernels.match (the solver's matcher): the rows match_indexed
+    gives, in the
     same order — with the mirror check decided or not — and the faithful set; the work
     array is left as it was found."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
 
     v, idx = small_sky
     drawn = noisy_pattern(v, seed, n, tol_deg)
@@ -396,7 +397,7 @@ def test_compiled_match_gives_the_rows_of_match_indexed(small_sky, seed, n, tol_
 def test_the_last_level_counts_against_the_work_budget(small_sky):
     """A pattern whose complete assignments outnumber the budget trips it (memory for the
     quick checks stays bounded), in both matchers, at the last level."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
 
     v, idx = small_sky
     ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
@@ -421,7 +422,7 @@ def test_compiled_match_past_the_index_reach(small_sky):
     """A triangle whose (1, 2) side is longer than the index's reach (its pair list holds
     no such pair; match_indexed tests that link directly): the kernel gives the same rows,
     the triangle among them."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
 
     v, idx = small_sky
     ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
@@ -451,7 +452,7 @@ def test_compiled_match_past_the_index_reach(small_sky):
 def test_compiled_match_mirror_and_work_budget(small_sky):
     """The mirror image of a triangle is not matched, the true one is; over the work
     budget the kernel reports what WorkBudgetExceeded says, at the same level."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
 
     v, idx = small_sky
     ix, work = kernels.index_arrays(idx), kernels.scratch(kernels.index_arrays(idx))
@@ -496,7 +497,7 @@ def test_compiled_match_mirror_and_work_budget(small_sky):
 def test_compiled_rotation_equals_the_svd_one():
     """The kernels' Jacobi SVD gives the rotation of starid.solver._rotation_from_pairs
     (to rounding scaled by the problem's conditioning), and the same collinear verdict."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
     from adfusion.starid.solver import _rotation_from_pairs
 
     rng = np.random.default_rng(0)

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from adfusion.logs import McapLogReader, topics
 from adfusion.sensors.scenarios import oedipus
-from adfusion.starid import rotations as rot
 
 from adfusion.app.cli import main
 from adfusion.app.replay import simulate
+from adfusion.maths import rotations as rot
 
 MOUNT_ARGS: list[str] = []
 
@@ -394,7 +394,7 @@ def test_px4_ulog_imu_merges_with_a_folder_of_frames(tmp_path):
 
 def test_attitude_records_agree_with_the_rotation_module():
     """The per-frame float arithmetic of /estimate/attitude and /estimate/error against
-    adfusion.starid.rotations' array functions (radec_roll_from_q_cam_icrs, log_map)."""
+    adfusion.maths.rotations' array functions (radec_roll_from_q_cam_icrs, log_map)."""
     from adfusion.app.replay.sinks import attitude_deg, attitude_error
 
     rng = np.random.default_rng(1)

@@ -5,11 +5,12 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from scipy.spatial.transform import Rotation
+
+from adfusion.maths import rotations as rot
 
 TOL = 1e-12
 

@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pytest
 from adfusion.sensors.scenarios import KINDS, Event, Scenario, leo, oedipus
-from adfusion.starid import rotations as rot
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
 
 
 def digest(events: list[Event]) -> str:

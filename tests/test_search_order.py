@@ -1,4 +1,4 @@
-"""The 3-star combination order after a failed Not-Modus (starid.search_order)."""
+"""The 3-star combination order after a failed Not-Modus (starid.identify.search_order)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import itertools
 
 import numpy as np
 import pytest
-from adfusion.starid.search_order import combination_order
+from adfusion.starid.identify.search_order import combination_order
 
 
 def _notmodus(n_det: int, n: int = 6) -> list[tuple[int, ...]]:

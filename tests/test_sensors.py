@@ -1,7 +1,7 @@
 """Sensor models against independent truth: Allan variance, analytic error models, IGRF
 dipole coefficients and ppigrf's geocentric output, Meeus's sidereal-time and precession
 examples, rigid-body closed forms and conservation laws, rendered streak geometry and what
-``starid.detect`` makes of tethers, planets and intensified frames."""
+``starid.detection.detect`` makes of tethers, planets and intensified frames."""
 
 from __future__ import annotations
 
@@ -31,10 +31,10 @@ from adfusion.sensors.render import (
     render_sky,
     render_stars,
 )
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
+from adfusion.starid.camera.model import Camera
 
 from adfusion import sensors, starid
+from adfusion.maths import rotations as rot
 
 # --------------------------------------------------------------------------------------------
 # Gyro

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 from adfusion.logs import McapLogReader
 from adfusion.sensors.scenarios import leo, oedipus
-from adfusion.starid import rotations as rot
-from adfusion.starid.catalog import Catalog
+from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
 
 from adfusion.app.pipeline import replay, simulate
@@ -22,6 +21,7 @@ from adfusion.estimation.smoother import (
     smooth,
 )
 from adfusion.estimation.smoother.factors import wnoa_factor
+from adfusion.maths import rotations as rot
 
 # --- pieces ------------------------------------------------------------------------------
 

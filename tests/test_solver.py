@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.camera.view import stars_in_view
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
 
 
 @pytest.fixture(scope="module")
@@ -97,7 +97,7 @@ def test_not_modus_recovers_when_a_bright_false_star_spoils_the_pattern(solver, 
 
 
 def test_compiled_search_equals_the_numpy_search(solver, cat, cam, monkeypatch):
-    """The compiled search (starid.kernels) is a pure speed-up: with the pattern loop in
+    """The compiled search (starid.identify.kernels) is a pure speed-up: with the pattern loop in
     Python and every pattern matched by nstar.match_indexed, the solutions are the same —
     ok, reason, path, trials, matches, matching counter, p_false, candidates."""
     rng = np.random.default_rng(31)
@@ -171,9 +171,9 @@ def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
 
 def _quick_check_numpy(solver, b_all, sel, assign, cam, angles, tol, trials, mirror):
     """The quick check as the numpy solver computed it (KD-tree association, scipy's
-    binomial tail, starid.verify's chance estimate): the reference for the kernel."""
+    binomial tail, starid.identify.verify's chance estimate): the reference for the kernel."""
+    from adfusion.starid.identify.verify import binomial_tail, expected_chance_patterns
     from adfusion.starid.solver import _keeps_pattern, _one_to_one, _rotation_from_pairs
-    from adfusion.starid.verify import binomial_tail, expected_chance_patterns
     from scipy.spatial import cKDTree
 
     R = _rotation_from_pairs(b_all[sel], solver.vectors[assign])
@@ -201,7 +201,7 @@ def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
     pairs' angles come from arccos of dot products: one ulp of a cosine, summed in
     another order or with FMA by BLAS, moves a 1° angle by ~1e-14 rad, ~1e-11 of a
     window)."""
-    from adfusion.starid.nstar import closest_pair_first
+    from adfusion.starid.identify.nstar import closest_pair_first
 
     rng = np.random.default_rng(5)
     seen = rejected = 0
@@ -215,8 +215,8 @@ def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
             o = closest_pair_first(ang)
             sel, ang = sel[o], ang[np.ix_(o, o)]
             tol = np.full(ang.shape, solver.tolerance_rad)
-            pattern = starid.nstar.Pattern.from_angles(ang, solver.tolerance_rad,
-                                                       starid.nstar.chirality_of(
+            pattern = starid.identify.nstar.Pattern.from_angles(ang, solver.tolerance_rad,
+                                                       starid.identify.nstar.chirality_of(
                                                            b_all[sel], 2 * solver.tolerance_rad))
             assigns = solver._match(pattern)
             if len(assigns) == 0:
@@ -241,8 +241,12 @@ def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
 
 
 def test_compiled_binomial_tail_and_chance_estimate_equal_the_reference():
-    from adfusion.starid import kernels
-    from adfusion.starid.verify import binomial_tail, expected_chance_patterns, spot_geometry
+    from adfusion.starid.identify import kernels
+    from adfusion.starid.identify.verify import (
+        binomial_tail,
+        expected_chance_patterns,
+        spot_geometry,
+    )
     from scipy.stats import binom
 
     for m in (0, 1, 5, 20, 30):
@@ -549,7 +553,7 @@ def test_tracking_refuses_a_two_star_fix_that_leaves_the_roll_open(cat, cam, sol
 def test_compiled_nearest_star_equals_the_kd_tree(solver):
     """Association in the kernel scans the anchor's neighbour row in an annulus (or every
     star, beyond the row's reach): the nearest star within the radius, as a KD-tree gives."""
-    from adfusion.starid import kernels
+    from adfusion.starid.identify import kernels
     from scipy.spatial import cKDTree
 
     rng = np.random.default_rng(9)

@@ -61,7 +61,7 @@ def test_the_compiled_verification_equals_the_python_code(cat, sigma_px, n_false
 def test_an_uncertain_camera_keeps_the_python_refit(cat, monkeypatch):
     """A camera being fitted (FOV uncertain) is refitted in Python, not by the kernels (the
     refit's own, or the one-call frame's that runs it)."""
-    from adfusion.starid import frame_kernels, kernels
+    from adfusion.starid.identify import frame_kernels, kernels
     calls = []
     real, real_frame = kernels.refine_pinhole, frame_kernels.solve_frame_packed
     monkeypatch.setattr(kernels, "refine_pinhole", lambda *a: calls.append(1) or real(*a))
@@ -84,9 +84,10 @@ def test_a_principal_point_off_the_centre_keeps_the_far_corners_stars(cat):
     tracking path's prediction) must reach it. The compiled refit (lean path), the Python
     refit and tracking from the true attitude match the same stars, among them stars
     beyond half the diagonal."""
-    from adfusion.starid import rotations as rot
-    from adfusion.starid.solution import Prior
-    from adfusion.starid.view import stars_in_view
+    from adfusion.starid.camera.view import stars_in_view
+    from adfusion.starid.identify.solution import Prior
+
+    from adfusion.maths import rotations as rot
 
     K = starid.Camera.pinhole(1024, 768, 15.0).K.copy()
     K[0, 2] += 100.0

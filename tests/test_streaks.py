@@ -10,10 +10,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.attitude import refine_streaked, streak_vectors, wahba_unit
-from adfusion.starid.camera import Camera
+from adfusion.starid.camera.model import Camera
 from adfusion.starid.solver import Prior
+
+from adfusion.maths import rotations as rot
+from adfusion.maths.attitude import refine_streaked, streak_vectors, wahba_unit
 
 
 def _pieces(rng, q, r, smear, sigma, whole):

@@ -1,4 +1,4 @@
-"""Tracking's compiled path (starid.tracking_kernels) gives what the numpy path gives: the
+"""Tracking's compiled path (starid.tracking.kernels) gives what the numpy path gives: the
 same outcome, reason, matches and p_false, the same attitude to rounding — on clean
 frames, two- and three-star frames, false detections, detections claimed twice, streaked
 frames and a catalogue too large to scan (the solver's cone instead)."""
@@ -9,11 +9,11 @@ import time
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid import tracking
-from adfusion.starid.view import stars_in_view
+from adfusion.starid.camera.view import stars_in_view
+from adfusion.starid.tracking import tracking
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
 
 
 @pytest.fixture(scope="module")

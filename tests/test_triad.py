@@ -1,4 +1,4 @@
-"""Tests for starid.triad: Yee (1999) triad identification and plate pointing.
+"""Tests for starid.triad.identify: Yee (1999) triad identification and plate pointing.
 
 Truth used: the thesis's tables (docs/references.md#yee-1999: T2.1–T2.2, T3.1, T4.1–T4.12,
 the §2.6 worked examples) and its acceptance criteria AC-01…AC-22; BSC5 (../shared) for the
@@ -15,29 +15,25 @@ import math
 from collections import Counter
 from pathlib import Path
 
-import adfusion.starid.triad as triad_module
+import adfusion.starid.triad.identify as triad_module
 import numpy as np
 import pytest
 import yee_fixtures as yf
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
-from adfusion.starid.triad import (
-    PlateDivergenceError,
-    SeparationDatabase,
-    TriadParams,
-    TriadResult,
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.catalog.stars import Catalog
+from adfusion.starid.triad.angles import (
     catalog_angle_deg,
     circular_mean_deg,
-    identify_triads,
     image_angle_deg,
     planar_angles_deg,
-    plate_pointing,
-    plate_solution,
     rotation_angles_deg,
     spherical_angles_deg,
-    yee_label,
 )
+from adfusion.starid.triad.database import SeparationDatabase, TriadParams
+from adfusion.starid.triad.identify import TriadResult, identify_triads, yee_label
+from adfusion.starid.triad.plate import PlateDivergenceError, plate_pointing, plate_solution
+
+from adfusion.maths import rotations as rot
 
 
 def _camera(name: str) -> Camera:

@@ -1,4 +1,4 @@
-"""The catalogue's triangles looked up (starid.triangle_index, kernels._triangles_looked_up)
+"""The catalogue's triangles looked up (starid.catalog.triangle_index, kernels._triangles_looked_up)
 against the scan of the pair windows they replace, and the sky map that lets the
 association skip empty sky (kernels.sky_map) against a KD-tree: the same rows in the same
 order, the same solutions, every star's neighbourhood marked."""
@@ -10,8 +10,9 @@ import itertools
 
 import numpy as np
 import pytest
-from adfusion.starid import kernels, triangle_index
-from adfusion.starid.index import REUSE_DRIFT_RAD, PatternIndex
+from adfusion.starid.catalog import triangle_index
+from adfusion.starid.catalog.pair_index import REUSE_DRIFT_RAD, PatternIndex
+from adfusion.starid.identify import kernels
 from test_frame_kernels import _same
 from test_solver import sky_frame
 

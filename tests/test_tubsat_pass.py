@@ -13,12 +13,12 @@ import math
 import numpy as np
 import pytest
 from adfusion.logs import McapLogReader
-from adfusion.starid import rotations as rot
-from adfusion.starid.bleif import tubsat_camera
-from adfusion.starid.bleif_catalog import PatternCatalog
-from adfusion.starid.catalog import Catalog
-from adfusion.starid.operator import IdentificationSession
+from adfusion.starid.bleif.matcher import tubsat_camera
+from adfusion.starid.bleif.operator import IdentificationSession
+from adfusion.starid.bleif.patterns import PatternCatalog
+from adfusion.starid.catalog.stars import Catalog
 
+from adfusion.maths import rotations as rot
 from adfusion.pointing.drift import DriftModel
 from adfusion.pointing.night_pass import (
     NightPassConfig,

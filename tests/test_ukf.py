@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
 from test_mekf import (
     DEG_PER_H,
     ORBIT_PERIOD,
@@ -20,6 +19,7 @@ from test_mekf import (
 
 from adfusion.estimation.mekf import MEKF
 from adfusion.estimation.ukf import UKF, grp_from_quaternion, quaternion_from_grp
+from adfusion.maths import rotations as rot
 
 
 def test_grp_round_trip_and_small_angle_equals_rotation_vector() -> None:

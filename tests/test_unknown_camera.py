@@ -8,10 +8,10 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from adfusion.starid import rotations as rot
-from adfusion.starid.calibrate import fit_camera_model
+from adfusion.starid.camera.calibrate import fit_camera_model
 
 from adfusion import starid
+from adfusion.maths import rotations as rot
 
 
 @pytest.fixture(scope="module")
@@ -94,8 +94,8 @@ def test_fit_camera_model_over_many_frames_recovers_pixel_aspect_and_distortion(
 def test_a_strong_candidate_beats_a_weak_near_duplicate():
     """Issue 14 #7: a 29-star candidate at p_false 4e-54 and an 11-star one at 2e-12 give
     the former with a note; two comparable candidates on different stars stay ambiguous."""
-    from adfusion.starid.lost_in_space import resolve_by_evidence
-    from adfusion.starid.solution import Candidate
+    from adfusion.starid.identify.candidates import resolve_by_evidence
+    from adfusion.starid.identify.solution import Candidate
 
     def cand(p, matches):
         return Candidate(np.array([1.0, 0, 0, 0]), matches, np.zeros(len(matches)), p, 4,

@@ -41,9 +41,9 @@ import numpy as np
 
 from adfusion.basilisk.scenarios import LOOPS, LoopRun, run_loop, scenario
 from adfusion.logs import LogWriter
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
+from adfusion.maths import rotations as rot
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
 
 __all__ = ["AcsReport", "attitude_errors_rad", "nees", "run_acs", "summarize"]

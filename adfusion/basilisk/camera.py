@@ -34,10 +34,10 @@ from Basilisk.architecture import messaging, sysModel
 from numpy.typing import ArrayLike, NDArray
 
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
+from adfusion.maths import rotations as rot
 from adfusion.sensors.render import SensorModel, render_frame
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.catalog.stars import Catalog
 
 __all__ = ["CameraFrame", "StarCameraModule", "earth_limb_angle_rad", "is_flooded"]
 

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = ["dcm_bn_from_sigma_bn", "icrs_from_body_sigma_bn", "q_body_icrs_from_sigma_bn",
            "sigma_bn_from_q_body_icrs"]

@@ -37,7 +37,7 @@ from Basilisk.architecture import messaging, sysModel
 from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
 from adfusion.basilisk.msgio import live_view
 from adfusion.logs import LogWriter
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = ["McapLogModule"]
 

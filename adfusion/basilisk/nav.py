@@ -71,8 +71,8 @@ from adfusion.basilisk.frames import q_body_icrs_from_sigma_bn
 from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
-from adfusion.starid import rotations as rot
-from adfusion.starid.detect_roi import TrackingWindows
+from adfusion.maths import rotations as rot
+from adfusion.starid.detection.windows import TrackingWindows
 
 __all__ = ["AdfusionNav"]
 
@@ -95,7 +95,7 @@ class AdfusionNav(sysModel.SysModel):
             controller's rate term unfiltered (None: no filter). The attitude is not
             filtered.
         windows: detect tracking frames in windows around the stars the filter predicts
-            (:class:`adfusion.starid.detect_roi.TrackingWindows`; a dict: its arguments),
+            (:class:`adfusion.starid.detection.windows.TrackingWindows`; a dict: its arguments),
             the whole frame otherwise — lost, a loose prior, too few stars found. False:
             always the whole frame. Each frame's record says which (``"detection"``).
         estimator_kw: passed to :class:`adfusion.Estimator` (gyro noise, gates, ...).

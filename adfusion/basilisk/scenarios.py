@@ -74,10 +74,10 @@ from adfusion.basilisk.log import McapLogModule
 from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.basilisk.nav import AdfusionNav
 from adfusion.logs import LogWriter
+from adfusion.maths import rotations as rot
 from adfusion.sensors.render import SensorModel
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
 
 __all__ = ["LOOPS", "SCENARIOS", "AcsConfig", "LoopRun", "run_loop", "scenario"]

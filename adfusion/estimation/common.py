@@ -2,7 +2,7 @@
 the gyro-step check, the tangent basis of a direction update and the fast symmetrisation.
 
 Written in plain floats where they sit on the hot path (numpy's per-call overhead is ~1 µs
-on 3- and 6-vectors); the quaternion maths itself is :mod:`adfusion.starid.rotations`
+on 3- and 6-vectors); the quaternion maths itself is :mod:`adfusion.maths.rotations`
 (``hamilton``, ``exp_map_floats`` …), one implementation for every module.
 
 Example:

@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from adfusion.estimation.mekf import MEKF
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 from adfusion.starid.solver import Prior, Solution, Solver
 
 __all__ = ["Estimator", "StepRecord"]
@@ -99,10 +99,10 @@ class Estimator:
             residuals); a filter that takes them as independent grows overconfident. On the
             OEDIPUS-like replay: 1 → the estimate inside its 3σ bound 81 % of the time,
             4 → 99.3 % (RMS error 0.024° → 0.028°). Use 1 for truly independent fixes.
-        detect: the detection function for ``frame=`` (default ``starid.detect``).
+        detect: the detection function for ``frame=`` (default ``starid.detection.detect``).
         detect_tracking: for a frame with a tracking prior, ``detect_tracking(image,
             prior)`` — detection around the stars the prior predicts, e.g.
-            :meth:`starid.detect_roi.TrackingWindows.detect` — returning detections, or
+            :meth:`starid.detection.windows.TrackingWindows.detect` — returning detections, or
             None to detect the whole frame with ``detect``. The prior is the one the solver
             then tracks from (computed once per frame). The record says which ran
             (``StepRecord.detection``).
@@ -327,7 +327,7 @@ class Estimator:
     def add_fix(self, t: float, q_cam_icrs: ArrayLike, covariance_cam: ArrayLike,
                 source: str = "star fix") -> StepRecord:
         """Adopt an attitude fix identified outside :meth:`step` — e.g. an operator-confirmed
-        candidate (:mod:`adfusion.starid.operator`) — taken at time ``t`` (s): ``q_cam_icrs``
+        candidate (:mod:`adfusion.starid.bleif.operator`) — taken at time ``t`` (s): ``q_cam_icrs``
         with its 3×3 camera-frame covariance (rad²). It initialises the filter, or updates it
         through the NIS gate like a solver fix (a rejection is recorded, never dropped
         silently).
@@ -442,7 +442,7 @@ class Estimator:
                 detect = self._detect
                 if detect is None:
                     from adfusion import starid
-                    detect = starid.detect
+                    detect = starid.detection.detect
                 try:
                     detections = detect(frame, self.solver.camera)
                 except (ValueError, TypeError, FileNotFoundError) as e:

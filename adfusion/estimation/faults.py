@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from adfusion.starid.attitude import wahba
+from adfusion.maths.attitude import wahba
 
 __all__ = ["WrongMatchInjector"]
 

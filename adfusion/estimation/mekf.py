@@ -74,7 +74,7 @@ from adfusion.estimation.common import (
     tangent_residual,
 )
 from adfusion.estimation.mekf_kernels import covariance_step
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = [
     "MEKF",

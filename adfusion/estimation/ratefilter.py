@@ -69,7 +69,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from adfusion.estimation.common import phi_rows, series_coeffs, symmetrize
 from adfusion.estimation.mekf import MEKF
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = ["RateMEKF", "rate_process_noise", "rate_transition_matrix"]
 

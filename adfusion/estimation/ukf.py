@@ -51,7 +51,7 @@ from adfusion.estimation.common import (
     tangent_residual,
 )
 from adfusion.estimation.mekf import AttitudeFilter, UpdateResult, process_noise
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = ["UKF", "grp_from_quaternion", "quaternion_from_grp"]
 

@@ -33,6 +33,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from adfusion.logs import topics
+from adfusion.maths import rotations as rot
 from adfusion.pointing.commands import CommandBook
 from adfusion.pointing.drift import (
     DriftModel,
@@ -42,15 +43,14 @@ from adfusion.pointing.drift import (
 )
 from adfusion.pointing.passplan import Orbit, best_time, earth_target_direction, plan_slews
 from adfusion.sensors.tubsat import SimulatedACS, star_blocks
-from adfusion.starid import rotations as rot
-from adfusion.starid.bleif import BleifCandidate, Overlay, tubsat_camera
-from adfusion.starid.bleif_catalog import PatternCatalog
-from adfusion.starid.catalog import Catalog
-from adfusion.starid.operator import IdentificationSession
-from adfusion.starid.star_angles import (
+from adfusion.starid.bleif.matcher import BleifCandidate, Overlay, tubsat_camera
+from adfusion.starid.bleif.operator import IdentificationSession
+from adfusion.starid.bleif.patterns import PatternCatalog
+from adfusion.starid.bleif.star_angles import (
     q_cam_icrs_from_star_angles,
     star_angles_from_q_cam_icrs,
 )
+from adfusion.starid.catalog.stars import Catalog
 
 __all__ = ["NightPassConfig", "NightPassResult", "example_orbit", "operator_accepts",
            "run_night_pass"]

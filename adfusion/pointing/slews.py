@@ -4,7 +4,7 @@ The thesis: docs/references.md#bleif-2004.
 
 DLR-TUBSAT's attitude control turns about one body axis at a time, so a re-pointing is a
 sequence of single-axis slews. Axes are the satellite frame S of
-:mod:`adfusion.starid.star_angles` (X_S image up, Y_S image right, Z_S boresight); a slew
+:mod:`adfusion.starid.bleif.star_angles` (X_S image up, Y_S image right, Z_S boresight); a slew
 by ``a`` about an axis is right-handed about that axis *of the body* (so a slew about Z_S
 by ``a`` increases AZ by ``a``). Attitudes are ``q_cam_icrs`` (camera x = Y_S,
 y = −X_S, z = Z_S); angles are radians.
@@ -19,8 +19,8 @@ y = −X_S, z = Z_S); angles are radians.
 
 Example (Tab. 8.2, 16.12.2002: start attitude to the Cassiopeia target RA 15°, DE 60°):
     >>> import numpy as np
-    >>> from adfusion.starid.star_angles import q_cam_icrs_from_star_angles
-    >>> from adfusion.starid.rotations import radec_to_vector
+    >>> from adfusion.starid.bleif.star_angles import q_cam_icrs_from_star_angles
+    >>> from adfusion.maths.rotations import radec_to_vector
     >>> q0 = q_cam_icrs_from_star_angles(*np.radians([147.65, -9.27, 296.21]))
     >>> mz, mx = z_then_x(q0, radec_to_vector(*np.radians([15.0, 60.0])))
     >>> round(abs(float(np.degrees(mz))), 1), round(abs(float(np.degrees(mx))), 1)
@@ -34,8 +34,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.starid import rotations as rot
-from adfusion.starid.star_angles import star_angles_from_q_cam_icrs, t_sq_from_q_cam_icrs
+from adfusion.maths import rotations as rot
+from adfusion.starid.bleif.star_angles import star_angles_from_q_cam_icrs, t_sq_from_q_cam_icrs
 
 __all__ = ["AXES_CAM", "az_null", "boresight", "euler_quaternion", "slew",
            "star_angles_from_euler_quaternion", "x_then_y", "z_then_x"]
@@ -52,7 +52,7 @@ def slew(q_cam_icrs: ArrayLike, axis: str, angle_rad: float) -> NDArray[np.float
     """The attitude after a right-handed body slew by ``angle_rad`` about S axis ``axis``.
 
     >>> import numpy as np
-    >>> from adfusion.starid.star_angles import (q_cam_icrs_from_star_angles,
+    >>> from adfusion.starid.bleif.star_angles import (q_cam_icrs_from_star_angles,
     ...                                          star_angles_from_q_cam_icrs)
     >>> q = slew(q_cam_icrs_from_star_angles(0.5, 0.2, 0.1), "Z", 0.3)
     >>> [round(a, 12) for a in star_angles_from_q_cam_icrs(q)]
@@ -110,7 +110,7 @@ def z_then_x(q_cam_icrs: ArrayLike, p_icrs: ArrayLike) -> tuple[float, float]:
 def az_null(q_cam_icrs: ArrayLike) -> float:
     """Eq. 5.27/5.28: the slew about Z_S (rad) that brings AZ to 0 the shortest way.
 
-    >>> from adfusion.starid.star_angles import q_cam_icrs_from_star_angles
+    >>> from adfusion.starid.bleif.star_angles import q_cam_icrs_from_star_angles
     >>> round(float(np.degrees(az_null(q_cam_icrs_from_star_angles(1.0, 0.5,
     ...       np.radians(283.64))))), 9)
     76.36

@@ -99,9 +99,8 @@ def steady_mekf():
     """An MEKF after 60 s of 200 Hz gyro and 1 Hz star fixes (Crassidis & Junkins
     Ex. 7.1's noise), with the next gyro sample and a star fix to apply: (filter, dt,
     omega, fix quaternion, fix covariance, star direction, its reference)."""
-    from adfusion.starid import rotations as rot
-
     from adfusion.estimation.mekf import MEKF
+    from adfusion.maths import rotations as rot
 
     rng = np.random.default_rng(0)
     arw, rrw = np.sqrt(10) * 1e-7, np.sqrt(10) * 1e-10

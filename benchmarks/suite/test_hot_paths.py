@@ -96,8 +96,8 @@ def test_mekf_star_vector_update(benchmark, steady_mekf):
 
 
 def test_detect_rendered_frame(benchmark, rendered_frame):
-    """``starid.detect`` on a rendered OEDIPUS-like frame (512×480, intensified)."""
-    from adfusion.starid.detect import detect
+    """``starid.detection.detect`` on a rendered OEDIPUS-like frame (512×480, intensified)."""
+    from adfusion.starid.detection.detect import detect
 
     benchmark.group = "detect"
     det = benchmark(detect, rendered_frame)
@@ -106,8 +106,8 @@ def test_detect_rendered_frame(benchmark, rendered_frame):
 
 @pytest.mark.shared
 def test_detect_real_frame(benchmark, real_frame):
-    """``starid.detect`` on a real 1024×768 16-bit night-sky frame (../shared/data)."""
-    from adfusion.starid.detect import detect
+    """``starid.detection.detect`` on a real 1024×768 16-bit night-sky frame (../shared/data)."""
+    from adfusion.starid.detection.detect import detect
 
     benchmark.group = "detect"
     det = benchmark(detect, real_frame)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 Array = NDArray[np.float64]
 

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from adfusion.estimation.smoother.factors import q_of, robust_noise, rot3, symbols, wnoa_factor
 from adfusion.estimation.smoother.inputs import FrameData, SmootherError, SmootherInput
 from adfusion.estimation.smoother.noise import star_covariances
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 Array = NDArray[np.float64]
 
@@ -128,7 +128,7 @@ def anchored_components(anchored: list[bool], linked: NDArray[np.bool_]) -> NDAr
 def initial_attitudes(frames: list[FrameData], t: Array) -> tuple[list, Array]:
     """Per frame the filter's estimate, else the fix, else a Wahba fit of its stars (None
     where there is nothing); biases from the nearest frame that has one (else zero)."""
-    from adfusion.starid.attitude import wahba_unit
+    from adfusion.maths.attitude import wahba_unit
 
     q0: list[Array | None] = []
     for f in frames:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 Array = NDArray[np.float64]
 

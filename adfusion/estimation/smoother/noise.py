@@ -8,7 +8,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 Array = NDArray[np.float64]
 
@@ -41,7 +41,7 @@ def calibrate_star_noise(
     >>> round(s0 / 2e-4, 1), k, n
     (1.0, 0.0, 2400)
     """
-    from adfusion.starid.attitude import wahba_unit
+    from adfusion.maths.attitude import wahba_unit
 
     rows = []  # per star: frame, predicted direction, residual, motion basis, speed
     nf = 0

@@ -1,0 +1,260 @@
+"""On-disk cache for derived arrays (parsed catalogues, pattern indexes).
+
+Entries are ``.npz`` files named by a SHA-256 of everything that determines their
+content: a kind tag, the parameters, and a fingerprint of each source file. A changed
+parameter or a changed source therefore maps to a different file and can never reuse a
+stale entry; there is no invalidation logic to get wrong.
+
+The directory is ``$ADFUSION_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/adfusion``,
+else ``~/.cache/adfusion``. Set ``ADFUSION_CACHE_DIR=off`` to disable caching.
+
+Size: the entries together are kept under ``$ADFUSION_CACHE_MAX_MB`` megabytes (default
+2000). Each load marks its entry used (its modification time); after a write, the least
+recently used entries are removed until the rest fit, the new entry last. An entry larger
+than the whole cap is not kept. :func:`cache_info` lists the entries, :func:`cache_clear`
+removes them (``adfusion cache info`` / ``adfusion cache clear``).
+
+Example:
+    >>> import numpy as np
+    >>> from adfusion.starid.catalog.cache import cached_arrays
+    >>> arrays = cached_arrays("demo", {"n": 3}, [], lambda: {"x": np.arange(3)})
+    >>> arrays["x"].tolist()
+    [0, 1, 2]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from adfusion.plain import json_default
+
+__all__ = ["CacheEntry", "cache_clear", "cache_dir", "cache_info", "cache_key",
+           "cache_limit_bytes", "cached_arrays", "evict", "file_fingerprint", "source_digest"]
+
+DEFAULT_MAX_MB = 2000.0
+
+_FINGERPRINTS: dict[tuple[str, int, int], str] = {}
+
+
+def cache_dir() -> Path | None:
+    """Return the cache directory (created on demand), or None when caching is off."""
+    env = os.environ.get("ADFUSION_CACHE_DIR")
+    if env is not None and env.strip().lower() in {"off", "0", "none", ""}:
+        return None
+    if env:
+        root = Path(env)
+    else:
+        xdg = os.environ.get("XDG_CACHE_HOME")
+        root = (Path(xdg) if xdg else Path.home() / ".cache") / "adfusion"
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
+def file_fingerprint(path: str | os.PathLike[str]) -> str:
+    """SHA-256 of a file's bytes, memoised per (path, size, mtime) within the process."""
+    p = Path(path)
+    st = p.stat()
+    memo_key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    if memo_key not in _FINGERPRINTS:
+        h = hashlib.sha256()
+        with p.open("rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        _FINGERPRINTS[memo_key] = h.hexdigest()
+    return _FINGERPRINTS[memo_key]
+
+
+def source_digest(*modules: str) -> str:
+    """A digest of the Python sources of ``modules`` (a package: every ``.py`` file in it and
+    its subpackages). Results that depend on the code carry it, so a cache or a partial file
+    is not reused after the code changed.
+
+    >>> len(source_digest("adfusion.starid"))
+    16
+    """
+    import importlib.util
+
+    h = hashlib.sha256()
+    for name in modules:
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.origin is None:
+            raise ValueError(f"no module {name!r}")
+        if spec.submodule_search_locations:  # a package
+            for loc in spec.submodule_search_locations:
+                for f in sorted(Path(loc).rglob("*.py")):
+                    h.update(f"{name}/{f.relative_to(loc).as_posix()}\0".encode())
+                    h.update(f.read_bytes())
+        else:
+            h.update(f"{name}\0".encode() + Path(spec.origin).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def cache_key(kind: str, params: dict, sources: Iterable[str | os.PathLike[str]] = ()) -> str:
+    """Stable hex key for a cache entry from its kind, parameters and source files."""
+    payload = {
+        "kind": kind,
+        "params": params,
+        "sources": [file_fingerprint(s) for s in sources],
+        "format": 1,
+    }
+    text = json.dumps(payload, sort_keys=True, default=json_default)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def cached_arrays(
+    kind: str,
+    params: dict,
+    sources: Iterable[str | os.PathLike[str]],
+    build: Callable[[], dict[str, np.ndarray]],
+    valid: Callable[[dict[str, np.ndarray]], bool] | None = None,
+) -> dict[str, np.ndarray]:
+    """Load the arrays for (kind, params, sources) from the cache, or build and store them.
+
+    ``build`` returns a dict of numpy arrays. ``valid``, if given, judges a loaded entry:
+    one it rejects is rebuilt and replaced under the same key. Writes are atomic (temp
+    file + rename), so a crash or two processes racing never leave a half-written entry
+    behind; after a write the cache is trimmed to its cap (:func:`evict`).
+    """
+    root = cache_dir()
+    if root is None:
+        return build()
+    path = root / f"{kind}-{cache_key(kind, params, sources)}.npz"
+    if path.exists():
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in z.files}
+            if valid is None or valid(arrays):
+                _touch(path)
+                return arrays
+        except (OSError, ValueError, EOFError):
+            path.unlink(missing_ok=True)  # corrupt entry: rebuild below
+    arrays = build()
+    fd, tmp = tempfile.mkstemp(dir=root, suffix=".npz.tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, path)
+    except OSError:
+        Path(tmp).unlink(missing_ok=True)
+    else:
+        evict(keep=path)
+    return arrays
+
+
+@dataclass(frozen=True)
+class CacheEntry:
+    """One cache file: its path, kind (``"pattern-index"``, ``"hip2-raw"``, …), size in
+    bytes and when it was last used (Unix time)."""
+
+    path: Path
+    kind: str
+    size: int
+    last_used: float
+
+
+def env_size_bytes(name: str, default: float, unit: str, scale: float,
+                   allow_zero: bool) -> int:
+    """A size limit from the environment variable ``name`` in ``unit`` (``scale`` bytes
+    each; ``default`` when unset), as bytes — one reader for the cache cap and the index's
+    memory bound, with the error naming the variable.
+
+    >>> env_size_bytes("ADFUSION_NO_SUCH_LIMIT", 1.5, "gigabytes", 1e9, False)
+    1500000000
+    """
+    env = os.environ.get(name, "").strip()
+    try:
+        value = float(env) if env else default
+    except ValueError:
+        raise ValueError(f"{name} must be a number of {unit}, got {env!r}") from None
+    if not (value >= 0 if allow_zero else value > 0):
+        raise ValueError(f"{name} must be {'≥ 0' if allow_zero else 'positive'}, got {env!r}")
+    return int(value * scale)
+
+
+def cache_limit_bytes() -> int:
+    """The cache's size cap: ``$ADFUSION_CACHE_MAX_MB`` megabytes (default 2000).
+
+    >>> cache_limit_bytes() > 0
+    True
+    """
+    return env_size_bytes("ADFUSION_CACHE_MAX_MB", DEFAULT_MAX_MB, "megabytes", 1e6, True)
+
+
+def cache_info() -> list[CacheEntry]:
+    """The cache's entries, most recently used first (empty when caching is off).
+
+    >>> isinstance(cache_info(), list)
+    True
+    """
+    root = cache_dir()
+    if root is None:
+        return []
+    out = []
+    for p in root.glob("*.npz"):
+        try:
+            st = p.stat()
+        except OSError:  # removed meanwhile by another process
+            continue
+        out.append(CacheEntry(p, p.name.rsplit("-", 1)[0], st.st_size, st.st_mtime))
+    return sorted(out, key=lambda e: -e.last_used)
+
+
+def cache_clear(kind: str | None = None) -> tuple[int, int]:
+    """Remove every entry (or those of one ``kind``); returns (files, bytes) removed.
+
+    Leftover temporary files of interrupted writes go too.
+
+    >>> n, size = cache_clear("no-such-kind")
+    >>> n, size
+    (0, 0)
+    """
+    n = size = 0
+    for e in cache_info():
+        if kind is None or e.kind == kind:
+            e.path.unlink(missing_ok=True)
+            n, size = n + 1, size + e.size
+    root = cache_dir()
+    if kind is None and root is not None:
+        for p in root.glob("*.npz.tmp"):
+            if time.time() - p.stat().st_mtime > 3600:  # not another process's live write
+                p.unlink(missing_ok=True)
+    return n, size
+
+
+def evict(limit_bytes: int | None = None, keep: Path | None = None) -> list[CacheEntry]:
+    """Remove least recently used entries until the cache fits ``limit_bytes`` (default
+    :func:`cache_limit_bytes`); ``keep`` goes last. Returns the entries removed.
+
+    >>> evict(10**15)
+    []
+    """
+    limit = cache_limit_bytes() if limit_bytes is None else int(limit_bytes)
+    entries = cache_info()
+    total = sum(e.size for e in entries)
+    # oldest first; the entry just written only when nothing else is left to remove
+    order = sorted(entries, key=lambda e: (keep is not None and e.path == keep, e.last_used))
+    removed = []
+    for e in order:
+        if total <= limit:
+            break
+        e.path.unlink(missing_ok=True)
+        total -= e.size
+        removed.append(e)
+    return removed
+
+
+def _touch(path: Path) -> None:
+    """Mark an entry used (its mtime: atime is often not kept, see mount's relatime)."""
+    try:
+        os.utime(path)
+    except OSError:  # read-only cache: still usable, just not ordered
+        pass
