@@ -51,7 +51,7 @@ from scipy.stats import chi2
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from adfusion.starid import Prior
-from adfusion.starid.detection import detect
+from adfusion.starid.detection.detect import detect
 
 from adfusion.basilisk.acs import attitude_errors_rad, nees, sky_and_solver, summarize
 from adfusion.basilisk.scenarios import run_loop, scenario

@@ -113,8 +113,9 @@ def test_tetra3rs_conversion() -> None:
 
 
 def test_doctests() -> None:
-    result = doctest.testmod(bench, optionflags=doctest.ELLIPSIS)
-    assert result.failed == 0
+    for module in (bench, bench.frames, bench.peers, bench.report, bench.driver):
+        result = doctest.testmod(module, optionflags=doctest.ELLIPSIS)
+        assert result.failed == 0, module.__name__
 
 
 def test_methods_compares_our_matchers_on_the_same_frames() -> None:

@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from adfusion.starid.cache import source_digest
+from adfusion.starid.catalog.cache import source_digest
 
 __all__ = [
     "MEASURED_KEYS",

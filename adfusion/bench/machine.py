@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from adfusion.starid.cache import source_digest
+from adfusion.starid.catalog.cache import source_digest
 
 __all__ = ["code_version", "machine_info"]
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from adfusion.starid import rotations as rot
-from adfusion.starid.renken import SAO_COUNTS, affine_attitude, linear_pattern
+from adfusion.maths import rotations as rot
+from adfusion.starid.identify.renken import SAO_COUNTS, affine_attitude, linear_pattern
 
 __all__ = ["PUBLISHED_ETA", "SimulationCell", "eq_8_1_attitudes", "renken_catalog",
            "simulate_cell"]
@@ -73,7 +73,7 @@ def renken_catalog(mag_limit: float, epoch: float = 2000.0, merge_px: float = 2.
     1–3 px blobs, so two stars closer than ~2 px segment as one object. With 1 px the
     mag < 5.4, 0.1° cell gives η ≈ 96.8 % (3 % multiple matches from close pairs the
     camera could not have resolved); with 2 px it gives 99.75 % against his 99.7 %."""
-    from adfusion.starid.catalog import Catalog
+    from adfusion.starid.catalog.stars import Catalog
 
     merged = Catalog.hipparcos(mag_limit=8.0, epoch=epoch).merged(np.radians(0.051 * merge_px))
     return merged.brightest(SAO_COUNTS[mag_limit])
@@ -86,10 +86,10 @@ def simulate_cell(catalog, mag_limit: float, tol_deg: float, n_frames: int, seed
     order), the n = min(number_is, 6) brightest, closest pair first, linear pixel
     angles, all matches enumerated. A unique match counts as clear when it is the true
     star set and a triangle passes Cond. 8.1 (success Cond. 8.2)."""
-    from adfusion.starid.camera import Camera
-    from adfusion.starid.index import PatternIndex
-    from adfusion.starid.nstar import closest_pair_first, match_indexed
-    from adfusion.starid.view import stars_in_view
+    from adfusion.starid.camera.model import Camera
+    from adfusion.starid.camera.view import stars_in_view
+    from adfusion.starid.catalog.pair_index import PatternIndex
+    from adfusion.starid.identify.nstar import closest_pair_first, match_indexed
 
     cam = Camera.renken()
     app = np.radians(0.051)

@@ -442,7 +442,7 @@ class Estimator:
                 detect = self._detect
                 if detect is None:
                     from adfusion import starid
-                    detect = starid.detection.detect
+                    detect = starid.detect
                 try:
                     detections = detect(frame, self.solver.camera)
                 except (ValueError, TypeError, FileNotFoundError) as e:
