@@ -590,7 +590,7 @@ def test_histogram_quantiles_equal_the_sorted_ones():
     for 8/16-bit and signed residual data, on or off a 16-level lattice."""
     import importlib
 
-    det = importlib.import_module("adfusion.starid.detection.detect")
+    det = importlib.import_module("adfusion.starid.detection.background")
     rng = np.random.default_rng(0)
     for _ in range(200):
         rows, n = int(rng.integers(1, 40)), int(rng.choice([5, 64, 127, 128, 129, 256]))

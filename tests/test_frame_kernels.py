@@ -524,7 +524,9 @@ def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat, monkeyp
     def broken(*args):
         raise AttributeError("a bug inside")
 
-    monkeypatch.setattr(lost_in_space, "_candidates_of", broken)
+    from adfusion.starid.identify import candidates
+
+    monkeypatch.setattr(candidates, "_candidates_of", broken)
     with pytest.raises(RuntimeError, match="a bug inside"):
         hasattr(solver.solve(arr), "candidates")
 

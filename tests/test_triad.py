@@ -15,7 +15,10 @@ import math
 from collections import Counter
 from pathlib import Path
 
+import adfusion.starid.triad.angles as triad_angles
+import adfusion.starid.triad.database as triad_database
 import adfusion.starid.triad.identify as triad_module
+import adfusion.starid.triad.plate as triad_plate
 import numpy as np
 import pytest
 import yee_fixtures as yf
@@ -81,8 +84,9 @@ def _synthetic_field(seed: int, n_img: int = 6, roll_deg: float = 30.0):
 
 
 def test_docstring_examples_run() -> None:
-    result = doctest.testmod(triad_module, optionflags=doctest.ELLIPSIS)
-    assert result.attempted > 20 and result.failed == 0
+    results = [doctest.testmod(m, optionflags=doctest.ELLIPSIS)
+               for m in (triad_angles, triad_database, triad_module, triad_plate)]
+    assert sum(r.attempted for r in results) > 20 and sum(r.failed for r in results) == 0
 
 
 def test_params_defaults_and_oedipus() -> None:
@@ -169,7 +173,7 @@ def test_plate_pointing_recovers_gnomonic_centre_and_validates() -> None:
     xy = rng.uniform(-200, 200, size=(6, 2))
     s = math.radians(0.02)
     xi, eta = -xy[:, 0] * s, xy[:, 1] * s  # east to the left
-    ra, dec = triad_module._equatorial(xi, eta, ra0, dec0)
+    ra, dec = triad_plate._equatorial(xi, eta, ra0, dec0)
     sol = plate_solution(xy, np.degrees(np.stack([ra, dec], 1)), 0.02, 0.02, tol_arcsec=0.01)
     assert (sol.ra_deg, sol.dec_deg) == pytest.approx((150.0, -60.0), abs=1e-6)
     assert sol.max_error_deg < 1e-7
