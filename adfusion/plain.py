@@ -2,7 +2,7 @@
 
 A leaf below every layer (it imports nothing of ours), so the log writer
 (:mod:`adfusion.logs`), the scenario configurations (:mod:`adfusion.sensors`) and the cache
-keys (:mod:`adfusion.starid.cache`) share it without depending on each other.
+keys (:mod:`adfusion.starid.catalog.cache`) share it without depending on each other.
 
 Example:
     >>> import json

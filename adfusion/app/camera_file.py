@@ -1,6 +1,6 @@
 """``--camera FILE``: an OpenCV camera YAML (as ``adfusion calibrate -o`` writes it), a ROS
-``camera_info`` YAML — both read by :func:`adfusion.starid.camera_file.read_camera_yaml` —
-or our ``camera.json`` (:meth:`adfusion.starid.camera.Camera.to_dict`, the attachment of
+``camera_info`` YAML — both read by :func:`adfusion.starid.camera.files.read_camera_yaml` —
+or our ``camera.json`` (:meth:`adfusion.starid.camera.model.Camera.to_dict`, the attachment of
 our logs). A missing or malformed file is a one-line :class:`ValueError` naming the flag.
 
 Example:
@@ -19,8 +19,8 @@ from __future__ import annotations
 import json
 import os
 
-from adfusion.starid.camera import Camera
-from adfusion.starid.camera_file import read_camera_yaml, write_camera_yaml
+from adfusion.starid.camera.files import read_camera_yaml, write_camera_yaml
+from adfusion.starid.camera.model import Camera
 
 __all__ = ["load_camera", "save_camera"]
 

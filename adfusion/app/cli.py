@@ -570,7 +570,7 @@ class _Solvers:
         self.camera_file = None
         self.fov = parse_fov(args.fov) if args.fov is not None else None
         if getattr(args, "camera", None):
-            from adfusion.starid.camera_file import read_camera_yaml
+            from adfusion.starid.camera.files import read_camera_yaml
 
             self.camera_file = read_camera_yaml(args.camera)
         elif args.fov is None:
@@ -591,7 +591,7 @@ class _Solvers:
 
     def solver_for(self, camera):
         from adfusion import starid
-        from adfusion.starid.coverage import DEFAULT_STARS_PER_FOV, catalog_for_camera
+        from adfusion.starid.catalog.coverage import DEFAULT_STARS_PER_FOV, catalog_for_camera
 
         key = camera.key()
         if key not in self._by_size:
@@ -630,7 +630,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
     import numpy as np
 
     from adfusion import starid
-    from adfusion.starid.detect import read_image
+    from adfusion.starid.detection.image import read_image
 
     if args.example == bool(args.images):
         raise UsageError("give IMAGE(s) or --example (one of them)")
@@ -788,7 +788,7 @@ def _print_solution(out: dict) -> None:
 
 
 def cmd_cache(args: argparse.Namespace) -> int:
-    from adfusion.starid import cache
+    from adfusion.starid.catalog import cache
 
     root = cache.cache_dir()
     if args.action == "clear":
@@ -828,8 +828,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from adfusion import starid
-    from adfusion.starid.camera_file import read_camera_yaml, write_camera_yaml
-    from adfusion.starid.detect import read_image
+    from adfusion.starid.camera.files import read_camera_yaml, write_camera_yaml
+    from adfusion.starid.detection.image import read_image
     from adfusion.starid.joint_calibration import calibrate_frames
 
     _camera_or_fov(args)
@@ -1173,7 +1173,7 @@ def cmd_acs(args: argparse.Namespace) -> int:
 
 
 def cmd_catalog(args: argparse.Namespace) -> int:
-    from adfusion.starid.renken import renken_count_table
+    from adfusion.starid.identify.renken import renken_count_table
 
     rows = [dict(zip(("limit", "sao", "ours_V", "ours_Hp"), r, strict=True))
             for r in renken_count_table()]

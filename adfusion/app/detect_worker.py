@@ -1,6 +1,6 @@
 """Star detection in a separate process, a few frames ahead of the caller.
 
-A replay spends about half its time in :func:`starid.detect`, which needs nothing from the
+A replay spends about half its time in :func:`starid.detection.detect`, which needs nothing from the
 filter; on two cores it can run beside identification, filtering and logging. It is mostly
 many small numpy calls holding the GIL, so a thread gains nothing; a process does. The
 worker is a fresh interpreter (``python -m adfusion.app.detect_worker``) talking pickles over
@@ -272,7 +272,7 @@ def _serve(fd: int = -1) -> None:
     # ~0.7 ms of CPU per 512×480 frame handing small images between threads (detect took
     # 2.6 ms of CPU on one thread, 3.3 ms on two).
     cv2.setNumThreads(1)
-    from adfusion.starid import detect
+    from adfusion.starid.detection.detect import detect
 
     keep_freed_memory()  # pickled requests still allocate; see the function
     inp, out = sys.stdin.buffer, sys.stdout.buffer

@@ -17,9 +17,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from adfusion.maths.rotations import q_cam_icrs_from_radec_roll
 from adfusion.sensors.render import SensorModel, render_sky
-from adfusion.starid.camera import Camera
-from adfusion.starid.rotations import q_cam_icrs_from_radec_roll
+from adfusion.starid.camera.model import Camera
 
 __all__ = ["ExampleFrame", "count_found", "example_frame"]
 
@@ -45,7 +45,7 @@ def example_frame(
     seed: int = 7,
 ) -> ExampleFrame:
     """Cassiopeia by default: a 1024×768 star tracker with a 15° field, stars to V 6.5."""
-    from adfusion.starid.catalog import Catalog
+    from adfusion.starid.catalog.stars import Catalog
 
     cat = Catalog.hipparcos(mag_limit=mag_limit, epoch=2025.0)
     cam = Camera.pinhole(1024, 768, fov_x_deg)

@@ -40,7 +40,7 @@ import numpy as np
 from adfusion.app.errors import UsageError
 from adfusion.logs import McapLogReader, topics
 from adfusion.logs.writer import utc_ns
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = ["AttitudeHistory", "read_attitude_history", "write_aem", "write_csv"]
 

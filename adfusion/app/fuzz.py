@@ -198,7 +198,7 @@ def check_solver(bank: SolverBank, seed: int, fov_deg: float, n_false: int,
     dropped, false stars added), lost in space or with a prior that may be wrong. Only
     ``ValueError`` (documented) may escape; an accepted attitude must agree with the truth
     within max(10σ, 0.2°)."""
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
     from adfusion.starid.solver import Prior
 
     solver = bank.get(fov_deg)

@@ -3,7 +3,7 @@
 Like astrometry.net's ``solve-field`` outputs, beside a JSON record of the solution:
 
 * ``<stem>.wcs`` — a FITS file whose primary header holds the TAN(-SIP) WCS
-  (:func:`adfusion.starid.wcs.wcs_header`), no data;
+  (:func:`adfusion.starid.camera.wcs.wcs_header`), no data;
 * ``<stem>.corr`` — a FITS binary table, one row per matched star: the detection's pixel
   (``FIELD_X``/``FIELD_Y``, 0-based pixel centres: ``PIXORIGN = 0`` in the header; add 1
   for FITS/solve-field pixels) and its RA/Dec through our solution, the catalogue star's
@@ -30,7 +30,7 @@ __all__ = ["match_rows", "summary_table", "write_corr", "write_wcs"]
 def match_rows(sol, catalog, xy) -> list[dict]:
     """One dict per matched star: detection index and pixel, catalogue id, RA/Dec (deg)
     and magnitude at the catalogue's epoch, predicted pixel, residual (arcsec)."""
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
 
     if not sol.ok or not sol.matches:
         return []
@@ -58,7 +58,7 @@ def write_wcs(path: str | Path, sol, epoch: float | None = None) -> Path:
     """Write the solution's WCS as a header-only FITS file (solve-field's ``.wcs``)."""
     from astropy.io import fits
 
-    from adfusion.starid.wcs import wcs_header
+    from adfusion.starid.camera.wcs import wcs_header
 
     h = wcs_header(sol.camera, sol.q_cam_icrs)
     if epoch is not None:
@@ -74,7 +74,7 @@ def write_corr(path: str | Path, sol, rows: list[dict]) -> Path:
     ``.corr``, with our column names and 0-based pixels)."""
     from astropy.io import fits
 
-    from adfusion.starid import rotations as rot
+    from adfusion.maths import rotations as rot
 
     xy = np.array([[r["x"], r["y"]] for r in rows], np.float64).reshape(-1, 2)
     if len(xy):

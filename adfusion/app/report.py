@@ -39,7 +39,7 @@ import numpy as np
 
 from adfusion.app.errors import UsageError
 from adfusion.logs import McapLogReader, topics
-from adfusion.starid import rotations as rot
+from adfusion.maths import rotations as rot
 
 __all__ = ["log_problems", "report"]
 

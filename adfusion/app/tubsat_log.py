@@ -25,7 +25,7 @@ from pathlib import Path
 
 from adfusion.logs import LogWriter, topics
 from adfusion.pointing.night_pass import NightPassConfig, NightPassResult, run_night_pass
-from adfusion.starid.bleif import tubsat_camera
+from adfusion.starid.bleif.matcher import tubsat_camera
 
 __all__ = ["simulate_tubsat"]
 

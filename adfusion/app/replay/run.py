@@ -42,9 +42,9 @@ from adfusion.app.replay.stages import (
 from adfusion.estimation.estimator import Estimator
 from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
 from adfusion.logs import topics
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
-from adfusion.starid.catalog import Catalog
+from adfusion.maths import rotations as rot
+from adfusion.starid.camera.model import Camera
+from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
 
 __all__ = ["DEFAULT_ASSUMPTIONS", "ReplayOptions", "Run", "replay", "run"]

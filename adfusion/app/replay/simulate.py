@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from adfusion.logs import LogWriter, topics
+from adfusion.maths import rotations as rot
 from adfusion.plain import to_jsonable
-from adfusion.starid import rotations as rot
 
 __all__ = ["simulate"]
 

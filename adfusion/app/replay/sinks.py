@@ -29,8 +29,8 @@ from adfusion.app.errors import UsageError
 from adfusion.app.replay.stages import FRAME, GYRO, MAG, TRUTH, Step
 from adfusion.estimation.estimator import StepRecord
 from adfusion.logs import LogWriter, Message, topics
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
+from adfusion.maths import rotations as rot
+from adfusion.starid.camera.model import Camera
 from adfusion.starid.solver import Solver
 
 if TYPE_CHECKING:
@@ -338,7 +338,7 @@ class LayoutSink:
 def attitude_deg(t: float, q_body_icrs, sigma_rad, mode: str | None = None,
                  n_stars: int = 0) -> dict[str, Any]:
     """An ``/estimate/attitude`` record: RA, Dec, roll of body +z (deg) with 1σ per axis —
-    :func:`adfusion.starid.rotations.radec_roll_from_q_cam_icrs` of ``q_body_icrs``, in
+    :func:`adfusion.maths.rotations.radec_roll_from_q_cam_icrs` of ``q_body_icrs``, in
     float arithmetic.
 
     Example:

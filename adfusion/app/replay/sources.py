@@ -54,7 +54,7 @@ class Source(Protocol):
     has_images: bool
 
     def camera_model(self) -> dict[str, Any] | None:
-        """The camera model (:meth:`adfusion.starid.camera.Camera.to_dict`), if known."""
+        """The camera model (:meth:`adfusion.starid.camera.model.Camera.to_dict`), if known."""
 
     def image_size(self) -> tuple[int, int] | None:
         """(width, height) of the frames, when the input can tell it cheaply."""

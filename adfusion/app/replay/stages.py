@@ -28,8 +28,8 @@ import numpy as np
 
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.logs import Message, topics
-from adfusion.starid import rotations as rot
-from adfusion.starid.camera import Camera
+from adfusion.maths import rotations as rot
+from adfusion.starid.camera.model import Camera
 
 __all__ = ["DetectAhead", "EstimationStage", "InputProblems", "Step", "TruthStage", "TruthTrack"]
 
@@ -261,7 +261,7 @@ class DetectAhead:
     ``starid``, time the caller can spend loading the catalogue). :meth:`read` passes the
     messages through unchanged, ``depth`` frames behind the submissions; frames read before
     the worker is ready are not submitted but detected here when asked for, rather than
-    waited for. The estimator calls the object in place of ``starid.detect`` and gets the
+    waited for. The estimator calls the object in place of ``starid.detection.detect`` and gets the
     result computed for that very frame (errors raised there, as a direct call would).
     """
 
@@ -272,7 +272,7 @@ class DetectAhead:
         self.camera = camera
         self.cameras: dict[str, Camera] = {}  # image topic → its camera (several cameras)
         self.depth = depth
-        self.detect_kwargs: dict = {}  # starid.detect's settings (e.g. sigma)
+        self.detect_kwargs: dict = {}  # starid.detection.detect's settings (e.g. sigma)
         self._worker = None
         self._keys: dict[int, int] = {}
         self._submitted = 0
@@ -325,7 +325,7 @@ class DetectAhead:
     def __call__(self, frame, camera):
         key = self._keys.pop(id(frame), None)
         if key is None or self._worker is None:  # not submitted (or not read through us)
-            from adfusion.starid import detect
+            from adfusion.starid.detection.detect import detect
 
             return detect(frame, camera, **self.detect_kwargs)
         return self._worker.result(key)
