@@ -17,6 +17,7 @@ from adfusion.maths import rotations
 
 if TYPE_CHECKING:
     from adfusion.starid.catalog.stars import Catalog
+    from adfusion.starid.config import SolverConfig
     from adfusion.starid.solver import Candidate, Prior, Solution, Solver
 
 __all__ = [
@@ -27,6 +28,7 @@ __all__ = [
     "Prior",
     "Solution",
     "Solver",
+    "SolverConfig",
     "detect",
     "rotations",
 ]
@@ -35,7 +37,7 @@ __all__ = [
 # detects stars — replay's detection worker — starts ~0.4 s sooner without them.
 _LAZY = {"Catalog": "adfusion.starid.catalog.stars", "Candidate": "adfusion.starid.solver",
          "Prior": "adfusion.starid.solver", "Solution": "adfusion.starid.solver",
-         "Solver": "adfusion.starid.solver"}
+         "Solver": "adfusion.starid.solver", "SolverConfig": "adfusion.starid.config"}
 
 
 def __getattr__(name: str) -> Any:

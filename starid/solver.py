@@ -42,12 +42,14 @@ import itertools
 import math
 import time
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from adfusion.starid.bleif.bridge import BleifBridge
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.camera.view import stars_in_view
 from adfusion.starid.catalog.pair_index import PatternIndex, catalog_cache_tag
+from adfusion.starid.config import SolverConfig
 from adfusion.starid.identify import frame_kernels, kernels
 from adfusion.starid.identify.candidates import EVIDENCE_RATIO
 from adfusion.starid.identify.lost_in_space import LostInSpace
@@ -71,7 +73,7 @@ from scipy.spatial import cKDTree
 
 from adfusion.maths import rotations as rot
 
-__all__ = ["Candidate", "Prior", "Solution", "Solver"]
+__all__ = ["Candidate", "Prior", "Solution", "Solver", "SolverConfig"]
 
 # a tracking fix matching fewer than this share of min(predicted, detections) is checked
 # against lost-in-space on the same frame (Solver._cross_checked)
@@ -97,123 +99,36 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
     Args:
         catalog: a :class:`starid.Catalog` (anything with ``vectors`` and ``ids``).
         camera: the :class:`starid.Camera` (its focal length is the FOV estimate).
-        tolerance_deg: pair-distance tolerance; default from the camera and
-            ``centroid_sigma_px``: 3·√2·σ·pixel scale plus 0.003° for lens residuals.
-        centroid_sigma_px: 1-σ centroid error, used for the tolerance, match radius and
-            covariance.
-        n_max, n_min: pattern sizes (Renken 1998: 3…6).
-        p_false_max: acceptance threshold on the false-match probability.
-        fov_error_deg: ± uncertainty of the camera's horizontal FOV (0 = known).
-        fov_range_deg: instead, the horizontal FOV as a range (lo, hi) in degrees; the
-            camera is the nominal model (its FOV is tried first, then outwards). The
-            field is searched on a grid of focal scales within ``max_patterns`` per scale
-            and the ``work_budget``; the fitted camera comes back as ``Solution.camera``.
-        fit_camera: after identification, fit the camera to the matched stars:
-            ``"auto"`` (default) fits when the FOV is uncertain, ``"none"`` never,
-            ``"focal"`` the focal length only, ``"full"`` always the full model selected
-            by the data (focal length, pixel aspect, principal point, OpenCV radial and
-            tangential distortion; :func:`starid.camera.calibrate.fit_camera_model`).
-        faithful: use Renken's reference nested loops instead of the index (slow).
-        n_bands: Renken's declination sub-catalogues (1 = none); results are identical.
-        dec_check: Renken's declination-difference pre-check (faithful mode only).
-        max_detections: the brightest detections considered (the rest are ignored).
-        max_patterns: Not-Modus budget (patterns tried per focal scale).
-        max_fix_sigma_px: a tracking fix less certain than this is refused: its 1-σ
-            error moves the frame's corners by more than this many pixels (two stars close
-            together leave the roll open; such a fix would misplace the frame's edges).
-        max_tracking_cone_deg: a prior looser than this (k·σ) goes straight to
-            lost-in-space: beyond it, associating by prediction is no longer safe.
-        p_false_max_tracking: acceptance threshold with a prior. Tracking asks a much
-            narrower question than lost-in-space (are these the predicted stars?), a
-            filter's innovation gate checks the fix again, and two-star frames must be
-            usable: 1e-4 by default.
-        whole_streak_px: with a prior's ``smear_cam_rad``, streaks up to this long (px)
-            are taken as detected whole and a longer one's pieces as at least this long
-            (:func:`adfusion.maths.attitude.refine_streaked`). 20 px keeps the arcs of a spinning
-            payload (up to 18 px on the OEDIPUS-like log, detected whole: with 8 px the
-            60 s replay's RMS error grew from 0.0202° to 0.0224°) and catches the 34–68 px
-            streaks of the rate sweep, which break into pieces (an isotropic fit accepted
-            pieces 10 px off; with this model, 0 wrong in 6000 rendered frames).
-        work_budget: maximum partial assignments per matching level.
+        config: the options as one :class:`~adfusion.starid.config.SolverConfig` (default:
+            its defaults); ``solver.config`` is the one in use.
+        **options: any field of :class:`~adfusion.starid.config.SolverConfig` by name
+            (``fov_error_deg=0.5``, ``method="triad"`` …), in place of ``config``'s value.
     """
 
-    def __init__(
-        self,
-        catalog,
-        camera: Camera,
-        *,
-        tolerance_deg: float | None = None,
-        centroid_sigma_px: float = 0.5,
-        n_max: int = 6,
-        n_min: int = 3,
-        p_false_max: float = 1e-6,
-        fov_error_deg: float = 0.0,
-        fov_range_deg: tuple[float, float] | None = None,
-        fit_camera: str = "auto",
-        faithful: bool = False,
-        n_bands: int = 1,
-        dec_check: bool = True,
-        max_detections: int = 30,
-        max_patterns: int = 200,
-        work_budget: int = 200_000,
-        cache: bool = True,
-        method: str = "nstar",
-        triad_params=None,
-        bleif_params=None,
-        max_tracking_cone_deg: float = 3.0,
-        max_fix_sigma_px: float = 5.0,
-        p_false_max_tracking: float = 1e-4,
-        whole_streak_px: float = 20.0,
-    ) -> None:
-        if method not in ("nstar", "triad", "bleif"):
-            raise ValueError(f"method must be 'nstar', 'triad' or 'bleif', got {method!r}")
+    def __init__(self, catalog, camera: Camera, config: SolverConfig | None = None,
+                 **options: Any) -> None:
+        c = self.config = SolverConfig.of(config, **options)
+        method, n_min, n_max = c.method, c.n_min, c.n_max
+        centroid_sigma_px, tolerance_deg, p_false_max = (c.centroid_sigma_px, c.tolerance_deg,
+                                                         c.p_false_max)
+        fov_error_deg, fov_range_deg, fit_camera = c.fov_error_deg, c.fov_range_deg, c.fit_camera
+        faithful, n_bands, dec_check, cache = c.faithful, c.n_bands, c.dec_check, c.cache
+        max_detections, max_patterns, work_budget = (c.max_detections, c.max_patterns,
+                                                     c.work_budget)
         self.method = method
-        self.triad_params = triad_params
-        self.bleif_params = bleif_params
+        self.triad_params = c.triad_params
+        self.bleif_params = c.bleif_params
         self._bleif_patterns = None
-        self.max_tracking_cone_deg = float(max_tracking_cone_deg)
-        self.max_fix_sigma_px = float(max_fix_sigma_px)
-        self.p_false_max_tracking = float(p_false_max_tracking)
-        if not (np.isfinite(whole_streak_px) and whole_streak_px >= 0):
-            raise ValueError(f"whole_streak_px must be ≥ 0, got {whole_streak_px}")
-        self.whole_streak_px = float(whole_streak_px)
+        self.max_tracking_cone_deg = float(c.max_tracking_cone_deg)
+        self.max_fix_sigma_px = float(c.max_fix_sigma_px)
+        self.p_false_max_tracking = float(c.p_false_max_tracking)
+        self.whole_streak_px = float(c.whole_streak_px)
         self._triad_db = None
-        if not 2 <= n_min <= n_max <= 8:
-            raise ValueError(f"need 2 ≤ n_min ≤ n_max ≤ 8, got {n_min}, {n_max}")
-        if centroid_sigma_px <= 0 or not np.isfinite(centroid_sigma_px):
-            raise ValueError("centroid_sigma_px must be positive")
-        if fov_range_deg is not None:
-            try:
-                lo, hi = (float(v) for v in fov_range_deg)
-            except (TypeError, ValueError):
-                raise ValueError(f"fov_range_deg must be (lo, hi) in degrees, got "
-                                 f"{fov_range_deg!r}") from None
-            if not (0 < lo <= hi < 179):
-                raise ValueError(f"fov_range_deg must satisfy 0 < lo ≤ hi < 179, got "
-                                 f"({lo:g}, {hi:g})")
-            if fov_error_deg:
-                raise ValueError("give fov_range_deg or fov_error_deg, not both")
-            if camera.model != "pinhole":
-                raise ValueError("fov_range_deg needs a pinhole camera model")
-            fov_range_deg = (lo, hi)
-        if fit_camera not in ("auto", "none", "focal", "full"):
-            raise ValueError(f"fit_camera must be 'auto', 'none', 'focal' or 'full', got "
-                             f"{fit_camera!r}")
+        if fov_range_deg is not None and camera.model != "pinhole":
+            raise ValueError("fov_range_deg needs a pinhole camera model")
         if not 0 <= fov_error_deg < camera.fov_x_deg:
             raise ValueError(f"fov_error_deg must be in [0, {camera.fov_x_deg:.2f}) for this "
                              f"camera, got {fov_error_deg}")
-        if tolerance_deg is not None and not (np.isfinite(tolerance_deg)
-                                               and 0 < tolerance_deg < 90):
-            raise ValueError(f"tolerance_deg must be in (0, 90) degrees, got {tolerance_deg}"
-                             " (or None: from the camera and centroid_sigma_px)")
-        if not 0 < p_false_max < 1:
-            raise ValueError("p_false_max must be in (0, 1)")
-        if not 3 <= max_detections <= 64:
-            # the search marks a pattern's detections in a 64-bit mask
-            raise ValueError(f"max_detections must be in [3, 64], got {max_detections}")
-        if max_patterns < 1 or work_budget < 1:
-            raise ValueError(f"max_patterns and work_budget must be ≥ 1, got {max_patterns}"
-                             f" and {work_budget}")
         self.catalog = catalog
         self.camera = camera
         self.vectors = np.asarray(catalog.vectors, dtype=np.float64)

@@ -499,7 +499,6 @@ def test_a_lean_solutions_candidates_are_made_on_first_use_and_kept(cat, monkeyp
     import dataclasses
     import pickle
 
-    from adfusion.starid.identify import lost_in_space
 
     cam = starid.Camera.pinhole(1024, 768, 15.0)
     solver = starid.Solver(cat, cam)

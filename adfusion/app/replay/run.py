@@ -30,7 +30,14 @@ import numpy as np
 
 from adfusion.app.detect_worker import keep_freed_memory
 from adfusion.app.errors import UsageError
-from adfusion.app.replay.sinks import LogSink, ReplaySummary, SmootherSink, SummarySink
+from adfusion.app.replay.sinks import (
+    LayoutSink,
+    LogSink,
+    ReplaySummary,
+    Sink,
+    SmootherSink,
+    SummarySink,
+)
 from adfusion.app.replay.sources import Source
 from adfusion.app.replay.stages import (
     DetectAhead,
@@ -322,7 +329,7 @@ def _camera(source: Source, options: ReplayOptions) -> Camera:
     return camera
 
 
-def run(source: Source, sinks: Sequence[Any], options: ReplayOptions | None = None, *,
+def run(source: Source, sinks: Sequence[Sink], options: ReplayOptions | None = None, *,
         progress: bool = True, ahead: DetectAhead | None = None) -> Run:
     """Replay ``source`` into ``sinks``: every message becomes a
     :class:`~adfusion.app.replay.stages.Step`, goes through the truth and estimation stages
@@ -429,7 +436,6 @@ def replay(
 
     Process-wide side effect: :func:`adfusion.app.detect_worker.keep_freed_memory` (glibc
     keeps freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
-    from adfusion.app.replay.sinks import LayoutSink
     from adfusion.app.replay.sources import open_input
 
     t_start = time.perf_counter()
@@ -451,7 +457,7 @@ def replay(
         if compression == "auto":
             compression = "none" if source.has_images else "lz4"
         log = LogSink(out_path, compression)
-        sinks: list[Any] = [log]
+        sinks: list[Sink] = [log]
         if layout:
             sinks.append(LayoutSink(out_path))
         if smooth:

@@ -7,13 +7,19 @@ product of the run.
   and after the run smooths the whole log into ``/smoothed/state`` and ``/smoothed/pose``;
 * :class:`SummarySink` — the counters of :class:`ReplaySummary`.
 
-A sink has ``open(run)`` (the :class:`~adfusion.app.replay.run.Run` it belongs to),
-``take(step)`` and ``close()``; sinks close in reverse order of opening.
+A sink is anything that meets the :class:`Sink` protocol: ``open(run)`` (the
+:class:`~adfusion.app.replay.run.Run` it belongs to), ``take(step)`` and ``close()``; sinks
+close in reverse order of opening. The protocol, beside
+:class:`~adfusion.app.replay.sources.Source`, is what :func:`adfusion.app.replay.run.run`
+relies on, so this module names ``Run`` for type checking only and never imports the module
+that runs it.
 
 Example:
     >>> s = ReplaySummary(frames=10, identified=9)
     >>> s.as_dict()["identified"]
     9
+    >>> isinstance(SummarySink(s), Sink)
+    True
 """
 
 from __future__ import annotations
@@ -21,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -41,12 +47,29 @@ __all__ = [
     "LayoutSink",
     "LogSink",
     "ReplaySummary",
+    "Sink",
     "SmootherSink",
     "SummarySink",
     "attitude_deg",
     "attitude_error",
     "view_radius",
 ]
+
+
+@runtime_checkable
+class Sink(Protocol):
+    """What a replay product provides (see :class:`SummarySink`): opened once with the run,
+    given every step in order, closed at the end. A sink that also has ``abort(reason)`` is
+    told why a run stopped before it is closed (:class:`LogSink` records it)."""
+
+    def open(self, run: Run) -> None:
+        """Called once before the first step, with the run's shared state."""
+
+    def take(self, step: Step) -> None:
+        """One step of the replay (a frame, a gyro or magnetometer sample, a truth)."""
+
+    def close(self) -> None:
+        """Called once after the last step (also after an abort)."""
 
 
 @dataclass

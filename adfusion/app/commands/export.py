@@ -1,0 +1,25 @@
+"""``adfusion export``: a replay's estimates in flight-dynamics formats.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from adfusion.app.commands.args import _outputs_apart
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from adfusion.app.export import read_attitude_history, write_aem, write_csv
+
+    if not (args.aem or args.csv):
+        raise ValueError("nothing to export: give --aem FILE and/or --csv FILE")
+    _outputs_apart([(flag, path) for flag, path in (("--aem", args.aem), ("--csv", args.csv))
+                    if path], [args.log])
+    history = read_attitude_history(args.log, smoothed=args.smoothed, start_utc=args.start_utc)
+    if args.aem:
+        write_aem(history, args.aem)
+        print(f"AEM: {len(history.t)} attitudes → {args.aem}")
+    if args.csv:
+        write_csv(history, args.csv)
+        print(f"CSV: {len(history.t)} rows → {args.csv}")
+    return 0

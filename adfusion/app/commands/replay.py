@@ -1,0 +1,94 @@
+"""``adfusion replay``: a flight log, folder, video or bag through detection, identification
+and the filter, recorded to MCAP.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from adfusion.app.commands.args import (
+    _camera_or_fov,
+    _input_file,
+    _output_file,
+    _outputs_apart,
+    parse_fov,
+)
+from adfusion.app.commands.solve import _FOV_TOLERANCE
+from adfusion.app.errors import UsageError
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from adfusion.app.replay import ReplayOptions, replay
+
+    _camera_or_fov(args)
+    camera = None
+    if args.camera:
+        from adfusion.app.camera_file import load_camera
+
+        camera = load_camera(args.camera)
+    mount = None
+    if args.mount:
+        try:
+            mount = [float(x) for x in args.mount.replace(" ", "").split(",")]
+        except ValueError:
+            mount = []
+        if len(mount) != 4:
+            raise UsageError(f"--mount {args.mount}: give q_body_cam as four numbers w,x,y,z")
+    heads = None
+    if args.heads:
+        try:
+            heads = [int(k) for k in args.heads.split(",")]
+        except ValueError:
+            raise UsageError(f"--heads {args.heads}: camera indices such as 0,2") from None
+    if args.start_utc:
+        from adfusion.logs.writer import utc_iso
+
+        try:
+            utc_iso(args.start_utc)  # checked here: a one-line error before any work
+        except ValueError as exc:
+            raise UsageError(f"--start-utc: {exc}") from None
+    _output_file(args.output)
+    # the input itself is checked by the replay (an output that is its input, or whose
+    # temporary name is); here the files that come with it
+    _outputs_apart([("-o", args.output)],
+                   [p for p in (args.imu, args.timestamps, args.config, args.camera) if p])
+    config = None
+    if args.config:
+        _input_file(args.config, "JSON")
+        try:
+            with open(args.config, encoding="utf-8") as f:
+                config = json.load(f)
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"{args.config}: not a JSON file ({exc})") from None
+        if not isinstance(config, dict):
+            raise ValueError(f"{args.config}: the configuration must be a JSON object")
+    fov_deg, fov_error = None, args.fov_error
+    if args.fov is not None:
+        lo, hi = parse_fov(args.fov)
+        if lo < hi and args.fov_error:
+            raise UsageError("give --fov LO:HI or --fov-error, not both")
+        fov_deg = 0.5 * (lo + hi)
+        fov_error = 0.5 * (hi - lo) if lo < hi else args.fov_error
+    options = ReplayOptions(use_gyro=not args.no_gyro, use_mag=not args.no_mag,
+                            mag_limit=args.mag_limit, camera=camera, fov_deg=fov_deg,
+                            q_body_cam=mount, start_utc=args.start_utc, sigma=args.sigma,
+                            fov_error_deg=fov_error, epoch=args.epoch,
+                            exposure_s=args.exposure, arw_rad_sqrt_s=args.gyro_arw,
+                            rrw_rad_s_sqrt_s=args.gyro_rrw, heads=heads)
+    s = replay(args.input, args.output, options=options, progress=sys.stderr.isatty(),
+               smooth=args.smooth, smooth_mode=args.smoother, compression=args.compression,
+               fps=args.fps, timestamps=args.timestamps, imu=args.imu,
+               image_topic=args.image_topic, imu_topic=args.imu_topic,
+               mag_topic=args.mag_topic, config=config,
+               assume_defaults=args.assume_defaults)
+    print(json.dumps(s.as_dict(), indent=2) if args.json else str(s))
+    none_identified = s.frames > 0 and s.identified == 0
+    if none_identified:  # a replay with no fix at all is a failure, not a quiet success
+        why = (_FOV_TOLERANCE if args.fov is not None else
+               "check the camera model (--camera), the mounting and the detection threshold "
+               "(--sigma); `adfusion solve FRAME` on one frame says what it found")
+        print(f"no frame of {s.frames} was identified: {why}", file=sys.stderr)
+    # the output is written either way; 1 says it carries problems (listed above)
+    return 1 if s.smoother.get("error") or s.problems or none_identified else 0
