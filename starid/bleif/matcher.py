@@ -76,6 +76,7 @@ __all__ = [
     "distance_tolerance_deg",
     "dreibein",
     "find_matches",
+    "operator_marks",
     "overlay",
     "selection_of",
     "sigma_phi_numeric_rad",
@@ -634,12 +635,53 @@ def overlay(cand: BleifCandidate, pc: PatternCatalog, cam: Camera,
                    false_blocks.astype(np.int64))
 
 
+def operator_marks(xy: ArrayLike, camera: Camera, n_marked: int = 10) -> NDArray[np.int64]:
+    """The stars an operator marks among ``xy`` (star images, brightest first), in the
+    order of the clicks: indices into ``xy``, the reference first.
+
+    **Rule.** The operator marks the ``n_marked`` brightest (at most 10, Bleif 2004
+    §4.2.2); the *reference* — the first click — is the one nearest the image centre
+    (the principal point; a tie goes to the brighter); the others follow brightest first.
+
+    **Why the centre** (Bleif 2004 §4.2.4–4.2.6; docs/references.md#bleif-2004): the
+    first marked star is the reference, and every other marked star must be found in the
+    reference's pattern, which holds only the catalogue neighbours within 20° (at most
+    150, the nearest kept). From the centre every star of the 22.0° × 16.8° frame lies
+    within the half diagonal, 13.8°; from a corner the far corner is 27.7° away, outside
+    any pattern, and in dense regions the 150 cap drops the far neighbours first. And
+    the thesis's azimuth (CalcAzimut) is the position angle *at the reference*: it
+    describes the boresight only when the reference is near the centre (median error
+    0.24° within 50 px). This is the operator that :func:`~starid.bleif.operator.suggest_stars`
+    plays and the one ``benchmarks/bench_bleif.py`` measures (the truth first in about
+    98.5 % of 5–7-star trials); :class:`~starid.bleif.operator.IdentificationSession`
+    (``mark_detections``, ``suggest``) and ``Solver(method="bleif")`` both mark by it.
+
+    >>> import numpy as np
+    >>> cam = tubsat_camera()
+    >>> operator_marks([[10, 10], [370, 290], [700, 50], [380, 300]], cam).tolist()
+    [3, 0, 1, 2]
+    """
+    pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    n = min(int(n_marked), len(pts))
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    ref = int(_centre_ranking(pts[:n], camera)[0])
+    return np.array([ref, *[k for k in range(n) if k != ref]], dtype=np.int64)
+
+
+def _centre_ranking(pts: NDArray, camera: Camera) -> NDArray[np.int64]:
+    """Indices of ``pts`` nearest the principal point first (stable: ties keep the order)."""
+    return np.argsort(np.hypot(*(pts - camera.K[:2, 2]).T), kind="stable")
+
+
 @dataclass(frozen=True)
 class BleifParams:
     """Settings of ``Solver(method="bleif")``: the brightest ``n_marked`` detections play
-    the marked stars, up to ``n_refs`` of them (nearest the centre first) the reference in
-    turn, tolerant mode with ``k_miss`` misses (detections include false objects, which
-    the strict thesis mode cannot survive); ``t_pix`` as Eq. 4.14."""
+    the marked stars and the reference is the operator's (:func:`operator_marks`); only
+    when that selection gives no candidate at all (a false star among the marks, as the
+    strict thesis mode cannot survive one) does the solver re-mark as an operator would:
+    up to ``n_refs`` references (nearest the centre first) in turn, tolerant mode with up
+    to ``k_miss`` misses; ``t_pix`` as Eq. 4.14."""
 
     n_marked: int = 8
     n_refs: int = 3
@@ -649,30 +691,33 @@ class BleifParams:
 
 
 def detection_selections(patterns: PatternCatalog, xy: ArrayLike, camera: Camera,
-                         params: BleifParams = BleifParams(),
-                         ) -> Iterator[tuple[int, list[BleifCandidate], int]]:
-    """For a solver: per (misses allowed, reference) tried, (reference detection, its
-    candidates, patterns examined so far). The detections are ``xy`` brightest first; a candidate's
-    ``star_index`` is per marked star, with the marked stars being
-    ``selection_of(ref, len(xy), params)``."""
+                         params: BleifParams = BleifParams(), *, operator_round: bool = True,
+                         ) -> Iterator[tuple[int, int, list[BleifCandidate], int]]:
+    """For a solver: per (misses allowed, reference) tried, (reference detection, misses
+    allowed, its candidates, patterns examined so far). The detections are ``xy``
+    brightest first; a candidate's ``star_index`` is per marked star, with the marked
+    stars being ``selection_of(ref, len(xy), params)``. The first selection is the
+    operator's (:func:`operator_marks`, strict); ``operator_round=False`` leaves it out
+    (a caller that has run it already)."""
     pts = np.asarray(xy, dtype=np.float64)
     n = min(params.n_marked, len(pts))
-    r = np.hypot(*(pts[:n] - camera.K[:2, 2]).T)
-    refs = np.argsort(r, kind="stable")[: params.n_refs].tolist()
+    refs = _centre_ranking(pts[:n], camera)[: params.n_refs].tolist()
     examined = 0
     # strict first (fast, and enough for a clean selection), then more misses allowed
     for k_miss in range(min(params.k_miss, n - 3) + 1):
         for ref in refs:
+            if k_miss == 0 and ref == refs[0] and not operator_round:
+                continue
             sel = selection_of(ref, len(pts), params)
             counters = MatchCounters()
             cands = list(find_matches(patterns, pts[sel], camera, k_miss=k_miss,
                                       t_pix=params.t_pix, counters=counters))
             examined += counters.patterns
-            yield ref, cands, examined
+            yield ref, k_miss, cands, examined
 
 
 def selection_of(ref: int, n_det: int, params: BleifParams = BleifParams()) -> list[int]:
     """The detections marked when detection ``ref`` is the reference: it, then the other
-    brightest ``n_marked − 1``."""
+    brightest ``n_marked − 1`` (for the operator's reference, :func:`operator_marks`)."""
     n = min(params.n_marked, n_det)
     return [ref, *[k for k in range(n) if k != ref]]

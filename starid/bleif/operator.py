@@ -4,7 +4,11 @@ The operator marks stars in the reduced image (the first is the reference), pres
 *Find Match*, and steps through the candidates with their overlays until one fits; the
 accepted attitude is *locked* into an estimator. :func:`suggest_stars` picks the stars
 from the block list when no operator is at hand (clusters of ≥ 2 adjacent blocks, not the
-very large ones, the one nearest the image centre as reference).
+very large ones, the one nearest the image centre as reference, by
+:func:`~starid.bleif.matcher.operator_marks`); :meth:`IdentificationSession.mark_detections`
+marks detections (brightest first) by the same rule. ``Solver(method="bleif")`` runs this
+session on its detections (``mark_detections``, then :meth:`IdentificationSession.matches`)
+and verifies the candidates: both doors give one list.
 
 Example:
     >>> import numpy as np
@@ -29,7 +33,14 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
-from adfusion.starid.bleif.matcher import T_PIX, BleifCandidate, Overlay, find_matches, overlay
+from adfusion.starid.bleif.matcher import (
+    T_PIX,
+    BleifCandidate,
+    Overlay,
+    find_matches,
+    operator_marks,
+    overlay,
+)
 from adfusion.starid.bleif.patterns import PatternCatalog
 from adfusion.starid.camera.model import Camera
 from numpy.typing import ArrayLike, NDArray
@@ -83,6 +94,16 @@ class IdentificationSession:
     def clear_stars(self) -> None:
         """"Clear Stars"."""
         self.select(np.zeros((0, 2)))
+
+    def mark_detections(self, xy: ArrayLike, n: int = 10) -> NDArray[np.int64]:
+        """Mark star images ``xy`` (brightest first, e.g. detections) as the operator
+        would (:func:`~starid.bleif.matcher.operator_marks`: the ``n`` brightest, the
+        one nearest the image centre first as the reference); returns the marked
+        indices into ``xy`` in marking order (``self.stars`` is ``xy`` at them)."""
+        pts = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        marks = operator_marks(pts, self.camera, n)
+        self.select(pts[marks])
+        return marks
 
     def suggest(self, n: int = 6, **kwargs) -> NDArray[np.float64]:
         """Mark the stars :func:`suggest_stars` picks from the blocks; returns them."""
@@ -168,7 +189,8 @@ def suggest_stars(blocks_xy: ArrayLike, camera: Camera, n: int = 6, link_px: flo
     """Star positions from a block list (§5.2): blocks closer than ``link_px`` form a
     cluster; clusters of ``min_blocks`` … ``max_blocks`` blocks (single blocks are often
     hot pixels, very large ones have ill-defined centres) are ranked by size, the ``n``
-    largest kept, and the one nearest the image centre goes first as the reference.
+    largest kept, and the one nearest the image centre goes first as the reference
+    (:func:`~starid.bleif.matcher.operator_marks`, where the rule's reason is given).
 
     >>> import numpy as np
     >>> from adfusion.starid.bleif.matcher import tubsat_camera
@@ -189,9 +211,7 @@ def suggest_stars(blocks_xy: ArrayLike, camera: Camera, n: int = 6, link_px: flo
     if not good:
         return np.zeros((0, 2))
     cent = np.array([b[label == c].mean(axis=0) for c in good])
-    r = np.hypot(*(cent - camera.K[:2, 2]).T)
-    first = int(np.argmin(r))
-    return np.vstack([cent[first], np.delete(cent, first, axis=0)])
+    return cent[operator_marks(cent, camera, len(cent))]
 
 
 def overlay_png(ov: Overlay, camera: Camera, path: str | Path,
