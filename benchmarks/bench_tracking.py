@@ -70,8 +70,9 @@ class _Recorder(Solver):
 class _NumpyTracking(Solver):
     """The solver with tracking in numpy only (the path before the compiled one)."""
 
-    def _solve_tracking(self, xy, prior, t0):
-        return self._track_numpy(xy, prior, t0)
+    def __init__(self, *a, **kw) -> None:
+        super().__init__(*a, **kw)
+        self.tracker.solve = self.tracker.track_numpy
 
 
 def _frames(duration_s: float, seed: int) -> tuple[Solver, list[dict[str, Any]]]:

@@ -20,7 +20,7 @@ priors) for each seed, solved under these priors:
 * ``sigma_0.05``, ``sigma_0.2``, ``sigma_0.5`` — the truth turned by a random error of
   that RMS angle (degrees), told to the solver (the loose path: median shift, rounds).
 
-``_solve_tracking`` is called directly (no lost-in-space fallback: the record is of the
+``solver.tracker.solve`` is called directly (no lost-in-space fallback: the record is of the
 tracking path alone).
 
 Usage (from the repository root)::
@@ -102,8 +102,8 @@ def records(seeds: tuple[int, ...] = (1, 2), duration_s: float = 10.0) -> list[d
             for i, (xy, prior) in enumerate(cases):
                 if prior is None:
                     continue
-                sol = solver._solve_tracking(np.ascontiguousarray(xy, dtype=np.float64),
-                                             prior, time.perf_counter())
+                sol = solver.tracker.solve(np.ascontiguousarray(xy, dtype=np.float64),
+                                           prior, time.perf_counter())
                 out.append({"seed": seed, "condition": name, "frame": i, **_record(sol)})
     return out
 

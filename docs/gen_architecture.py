@@ -1,18 +1,26 @@
-"""The room table of ``docs/concepts/architecture.md``, generated from the code.
+"""The import graph of ``docs/concepts/architecture.md``, generated from the code.
 
 A MkDocs hook (``hooks:`` in ``mkdocs.yml``): at build time it replaces the
-``<!-- rooms:graph -->`` marker of that page with a table of the package's rooms, their
-module and line counts, and the rooms each one imports. The imports are read with
-:mod:`ast` from the source folders (nothing is imported), so the page cannot drift from
-the code. The source folders map to the installed names as in ``pyproject.toml``:
-``adfusion/`` → ``adfusion``, ``starid/`` → ``adfusion.starid``, ``sensors/`` →
-``adfusion.sensors``, ``logs/`` → ``adfusion.logs``.
+``<!-- rooms:graph -->`` marker of that page with (a) a table of the package's rooms,
+their module and line counts and the rooms each one imports, and (b) the same edges as a
+Mermaid flowchart. The imports are read with :mod:`ast` from the source folders (nothing
+is imported), so the page cannot drift from the code. The source folders map to the
+installed names as in ``pyproject.toml``: ``adfusion/`` → ``adfusion``, ``starid/`` →
+``adfusion.starid``, ``sensors/`` → ``adfusion.sensors``, ``logs/`` → ``adfusion.logs``.
+
+A room is a top-level package of ``adfusion`` (``maths``, ``logs``, ``app`` …), or one
+of starid's own rooms: a subpackage (``starid.camera`` …) or a top module
+(``starid.solver``, ``starid.jit_cache`` …), as in the second import-linter contract.
+``starid`` alone is that package's ``__init__`` (its public names); ``adfusion`` is the
+top package's ``__init__`` and ``__main__`` its ``python -m adfusion``. The rows follow
+the contracts' layers of ``pyproject.toml``, bottom first; rooms the contracts do not
+name come last.
 
 What counts as an import: every ``import`` and ``from … import`` statement of a module,
 those deferred into functions included; those under ``if TYPE_CHECKING:`` are not
 imports at run time and do not count; docstring examples are strings, not code.
 
-Run it as a script to print the table::
+Run it as a script to print the generated Markdown::
 
     python docs/gen_architecture.py
 """
@@ -20,6 +28,7 @@ Run it as a script to print the table::
 from __future__ import annotations
 
 import ast
+import tomllib
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -36,14 +45,30 @@ SOURCES = {
     "adfusion.logs": "logs",
 }
 
-# the order of the table's rows, bottom layer first; a room the code has and this list
-# does not is appended, so a new room shows up on the page anyway
-ORDER = [
-    "maths", "plain",
-    "starid.camera", "starid.catalog", "starid.detection",
-    "starid.identify", "starid.triad", "starid.bleif", "starid.tracking", "starid",
-    "logs", "sensors", "estimation", "pointing", "basilisk", "bench", "app", "adfusion",
-]
+
+@cache
+def layer_order() -> list[str]:
+    """The rooms of the import-linter ``layers`` contracts of ``pyproject.toml``, bottom
+    layer first: the package's layers, with ``starid`` opened into its own contract's
+    layers (and the package ``starid`` itself after them)."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    contracts = [c for c in config["tool"]["importlinter"]["contracts"]
+                 if c["type"] == "layers"]
+    inner: dict[str, list[str]] = {}
+    for contract in contracts:
+        for container in contract.get("containers", []):
+            inner[container] = [f"{container}.{item.strip()}"
+                                for layer in reversed(contract["layers"])
+                                for item in layer.split("|")]
+    order: list[str] = []
+    for contract in contracts:
+        if contract.get("containers"):
+            continue
+        for layer in reversed(contract["layers"]):
+            for item in layer.split("|"):
+                item = item.strip()
+                order += [*inner.get(item, []), item]
+    return [name.removeprefix("adfusion.") for name in order]
 
 
 @cache
@@ -133,16 +158,15 @@ def module_edges() -> frozenset[tuple[str, str]]:
 
 
 def room_of(name: str) -> str:
-    """The room of a module: ``starid.camera`` … for starid's subpackages, ``starid`` for
-    its top modules, the first name under ``adfusion`` otherwise (``adfusion`` itself for
-    the package's own ``__init__`` and ``__main__``)."""
+    """The room of a module: ``starid.camera``, ``starid.solver`` … for starid's
+    subpackages and top modules, ``starid`` for its ``__init__``, the first name under
+    ``adfusion`` otherwise: ``__main__`` for ``python -m adfusion``, ``adfusion`` itself
+    for the package's own ``__init__``."""
     parts = name.split(".")
-    if len(parts) == 1 or (len(parts) == 2 and parts[1] == "__main__"):
+    if len(parts) == 1:
         return "adfusion"
-    if parts[1] == "starid":
-        if len(parts) >= 3 and _is_package(".".join(parts[:3])):
-            return f"starid.{parts[2]}"
-        return "starid"
+    if parts[1] == "starid" and len(parts) >= 3:
+        return f"starid.{parts[2]}"
     return parts[1]
 
 
@@ -157,13 +181,15 @@ def room_edges() -> dict[str, set[str]]:
 
 
 def rooms() -> list[str]:
-    """The rooms in table order."""
+    """The rooms in table order: the contracts' layers, bottom first; a room the
+    contracts do not name comes last, so a new room shows up on the page anyway."""
     present = {room_of(m) for m in modules()}
-    return [r for r in ORDER if r in present] + sorted(present - set(ORDER))
+    order = layer_order()
+    return [r for r in order if r in present] + sorted(present - set(order))
 
 
 def graph_table() -> str:
-    """The Markdown table: room, modules, lines, the rooms it imports."""
+    """The Markdown table: room, modules, lines, the rooms it imports (bottom first)."""
     counts: dict[str, list[int]] = {}
     for name, path in modules().items():
         c = counts.setdefault(room_of(name), [0, 0])
@@ -174,12 +200,42 @@ def graph_table() -> str:
     rows = ["| Room | Modules | Lines | Imports |", "|---|--:|--:|---|"]
     for room in rooms():
         n, lines = counts[room]
-        imported = ", ".join(sorted(edges[room], key=order.__getitem__)) or "—"
-        rows.append(f"| {room} | {n} | {lines} | {imported} |")
+        imported = ", ".join(f"`{r}`" for r in sorted(edges[room], key=order.__getitem__))
+        rows.append(f"| `{room}` | {n} | {lines} | {imported or '—'} |")
     total_n = sum(c[0] for c in counts.values())
     total_lines = sum(c[1] for c in counts.values())
     rows.append(f"| **all** | {total_n} | {total_lines} | |")
     return "\n".join(rows)
+
+
+def _node(room: str) -> str:
+    """A Mermaid node id: letters, digits and underscores."""
+    return "adfusion_main" if room == "__main__" else room.replace(".", "_")
+
+
+def graph_mermaid() -> str:
+    """The same edges as a Mermaid flowchart (importer above imported); starid's rooms
+    in a box of their own."""
+    out = ["```mermaid", "flowchart TD"]
+    inside = [r for r in rooms() if r == "starid" or r.startswith("starid.")]
+    for room in rooms():
+        if room not in inside:
+            out.append(f'  {_node(room)}["{room}"]')
+    out.append('  subgraph starid_rooms ["adfusion.starid"]')
+    out += [f'    {_node(room)}["{room}"]' for room in inside]
+    out.append("  end")
+    edges = room_edges()
+    order = {r: i for i, r in enumerate(rooms())}
+    for room in reversed(rooms()):
+        for dst in sorted(edges[room], key=order.__getitem__, reverse=True):
+            out.append(f"  {_node(room)} --> {_node(dst)}")
+    out.append("```")
+    return "\n".join(out)
+
+
+def generated() -> str:
+    """What replaces the marker: the table, then the flowchart."""
+    return f"{graph_table()}\n\n{graph_mermaid()}"
 
 
 def on_page_markdown(markdown: str, page: Any, **kwargs: Any) -> str:
@@ -188,8 +244,10 @@ def on_page_markdown(markdown: str, page: Any, **kwargs: Any) -> str:
         return markdown
     if MARK not in markdown:
         raise RuntimeError(f"docs/{PAGE}: the marker {MARK} is missing")
-    return markdown.replace(MARK, graph_table())
+    for cached in (layer_order, modules, module_edges):  # ``mkdocs serve`` rebuilds
+        cached.cache_clear()
+    return markdown.replace(MARK, generated())
 
 
 if __name__ == "__main__":
-    print(graph_table())
+    print(generated())

@@ -38,36 +38,30 @@ Example:
 
 from __future__ import annotations
 
-import itertools
 import math
 import time
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from adfusion.starid.bleif.bridge import BleifBridge
+from adfusion.starid.bleif.bridge import BleifSearch
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.camera.view import stars_in_view
 from adfusion.starid.catalog.pair_index import PatternIndex, catalog_cache_tag
 from adfusion.starid.config import SolverConfig
 from adfusion.starid.identify import frame_kernels, kernels
 from adfusion.starid.identify.candidates import EVIDENCE_RATIO
-from adfusion.starid.identify.lost_in_space import LostInSpace
-from adfusion.starid.identify.nstar import Pattern, match_faithful, match_indexed
-from adfusion.starid.identify.refine import Refinement
-from adfusion.starid.identify.search_state import PairWindows, Search, input_bounds
+from adfusion.starid.identify.catalog_view import CatalogView
+from adfusion.starid.identify.lost_in_space import PatternSearch, focal_scales, outside_as_nan
+from adfusion.starid.identify.refine import Refiner
+from adfusion.starid.identify.search_state import input_bounds
 from adfusion.starid.identify.solution import Candidate, Prior, Solution
 from adfusion.starid.identify.verify import (
-    Verification,
-    distinct_candidates,
-    keeps_pattern,
-    one_to_one,
-    quick_tuples,
-    rotation_from_pairs,
-    variance_factor,
+    Verifier,
+    match_radius_px,
 )
-from adfusion.starid.tracking.tracking import Tracking, corner_sigma_px, pair_within
-from adfusion.starid.triad.bridge import TriadBridge
+from adfusion.starid.tracking.tracking import Tracker
+from adfusion.starid.triad.bridge import TriadSearch
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
@@ -81,19 +75,35 @@ _CROSS_CHECK_SHARE = 0.5
 # patterns the rest of a frame is searched with (stars left over in numbers are found in
 # the first few; the full budget on a rest of noise would cost ~10× the fix)
 _CHECK_PATTERNS = 20
-# the bound of Solver.warm_up's search of its synthetic frame (patterns, partial assignments)
-_WARM_UP_PATTERNS, _WARM_UP_WORK = 3, 20_000
 _SKY_MAP_MAX_RAD = 0.01  # the sky map's radius at most (rad): past it, no map
-_CONE_SPARE_RAD = math.radians(2.0)  # extra radius of the cached catalogue cone
 
-# the names these helpers had before the split (solver.py held them all)
-_PairWindows, _Search, _quick_tuples = PairWindows, Search, quick_tuples
-_pair_within, _corner_sigma_px, _variance_factor = pair_within, corner_sigma_px, variance_factor
-_one_to_one, _keeps_pattern, _rotation_from_pairs = one_to_one, keeps_pattern, rotation_from_pairs
-_distinct = distinct_candidates
+# the solver's attributes its parts were made with: (part, the part's attribute) each
+# (Solver.__setattr__ passes a later assignment on)
+_PART_SETTINGS: dict[str, tuple[tuple[str, str], ...]] = {
+    "camera": (("view", "camera"), ("refiner", "camera"), ("tracker", "camera"),
+               ("search", "camera")),
+    "centroid_sigma_px": (("verifier", "centroid_sigma_px"), ("refiner", "centroid_sigma_px"),
+                          ("tracker", "centroid_sigma_px"), ("search", "centroid_sigma_px")),
+    "tolerance_rad": (("tracker", "tolerance_rad"), ("bleif", "tolerance_rad"),
+                      ("search", "tolerance_rad")),
+    "max_sep_rad": (("verifier", "max_sep_rad"),),
+    "_fov_uncertain": (("verifier", "fov_uncertain"), ("refiner", "fov_uncertain"),
+                       ("search", "_fov_uncertain")),
+    "fit_camera": (("refiner", "fit_camera"),),
+    "p_false_max": (("triad", "p_false_max"), ("bleif", "p_false_max"),
+                    ("search", "p_false_max")),
+    "triad_params": (("triad", "params"),),
+    "bleif_params": (("bleif", "params"),),
+    "p_false_max_tracking": (("tracker", "p_false_max_tracking"),),
+    "max_fix_sigma_px": (("tracker", "max_fix_sigma_px"),),
+    "whole_streak_px": (("tracker", "whole_streak_px"),),
+    **{name: (("search", name),) for name in (
+        "n_min", "n_max", "max_detections", "max_patterns", "work_budget", "fov_error_deg",
+        "fov_range_deg", "faithful", "n_bands", "dec_check")},
+}
 
 
-class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refinement):
+class Solver:
     """Lost-in-space identification against a catalogue for one camera.
 
     Args:
@@ -103,6 +113,32 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             its defaults); ``solver.config`` is the one in use.
         **options: any field of :class:`~adfusion.starid.config.SolverConfig` by name
             (``fov_error_deg=0.5``, ``method="triad"`` …), in place of ``config``'s value.
+
+    Its parts, each an object made with what it reads (they share no state but the
+    catalogue view, and call each other only through the methods named here):
+
+    * ``view`` — :class:`~adfusion.starid.identify.catalog_view.CatalogView` (catalogue,
+      camera, vectors, ids, KD-tree, pattern index and its compiled arrays): the context
+      the others share, and the projection of the catalogue into a frame;
+    * ``search`` — :class:`~adfusion.starid.identify.lost_in_space.PatternSearch` (view,
+      verifier, refiner, camera and the search's settings): lost-in-space, Renken's
+      patterns and ours at every focal guess (``solve_at``, ``solve_refined``,
+      ``solve_lean``);
+    * ``verifier`` — :class:`~adfusion.starid.identify.verify.Verifier` (view, centroid
+      σ, index radius, whether the FOV is uncertain): quick check, full verification,
+      p_false;
+    * ``refiner`` — :class:`~adfusion.starid.identify.refine.Refiner` (view, camera,
+      centroid σ, ``fit_camera``, FOV uncertain): the final fit;
+    * ``tracker`` — :class:`~adfusion.starid.tracking.tracking.Tracker` (view, verifier,
+      camera, the tracking thresholds): identification near a prior;
+    * ``triad`` — :class:`~adfusion.starid.triad.bridge.TriadSearch` and ``bleif`` —
+      :class:`~adfusion.starid.bleif.bridge.BleifSearch` (view, verifier, their
+      parameters, ``p_false_max``): ``method="triad"`` and ``method="bleif"``.
+
+    The solver itself checks the input, picks the part (tracking with a prior, the
+    configured method without), and cross-checks what they return: a tracking fix the
+    frame contradicts, a lost-in-space fix that leaves most detections unexplained.
+    Settings assigned to the solver after it was made reach the parts that read them.
     """
 
     def __init__(self, catalog, camera: Camera, config: SolverConfig | None = None,
@@ -118,12 +154,10 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self.method = method
         self.triad_params = c.triad_params
         self.bleif_params = c.bleif_params
-        self._bleif_patterns = None
         self.max_tracking_cone_deg = float(c.max_tracking_cone_deg)
         self.max_fix_sigma_px = float(c.max_fix_sigma_px)
         self.p_false_max_tracking = float(c.p_false_max_tracking)
         self.whole_streak_px = float(c.whole_streak_px)
-        self._triad_db = None
         if fov_range_deg is not None and camera.model != "pinhole":
             raise ValueError("fov_range_deg needs a pinhole camera model")
         if not 0 <= fov_error_deg < camera.fov_x_deg:
@@ -152,7 +186,8 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self.max_patterns = int(max_patterns)
         self.work_budget = int(work_budget)
         # the index must reach across the widest field any focal guess gives
-        widest = camera.scaled(min(self._focal_scales())) if self._fov_uncertain else camera
+        widest = (camera.scaled(min(focal_scales(camera, self.fov_error_deg, fov_range_deg)))
+                  if self._fov_uncertain else camera)
         self.max_sep_rad = float(np.radians(widest.diagonal_fov_deg) + 2 * self.tolerance_rad)
         # keyed by the star set, not the epoch: a later epoch reuses the index (index.py)
         tag = catalog_cache_tag(catalog) if cache else None
@@ -162,19 +197,30 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         self._tree = cKDTree(self.vectors)
         # the association's sky map covers the widest guess's match radius (a kernel
         # asked for more ignores it); none for pixels so coarse that it would cover the sky
-        sky_rad = self._match_radius_px() * widest.pixel_scale_rad * 1.01
+        sky_rad = match_radius_px(self.centroid_sigma_px) * widest.pixel_scale_rad * 1.01
         cells = kernels.SKY_CELLS  # the map is made and read at the same cells per edge
         self._sky = ((kernels.sky_map(self.vectors, sky_rad, cells), cells, sky_rad)
                      if sky_rad < _SKY_MAP_MAX_RAD else None)
-        self._ix = kernels.index_arrays(self.index, None, self._sky)  # triangles: later
-        self._cache_tag = tag
-        self._pattern_lists: dict[tuple[int, ...], tuple] = {}
-        # the search runs compiled, except with the matchers kept in numpy
-        self._compiled = not (faithful or self.n_bands > 1)
-        # a candidate's verification with a known camera (starid.identify.verify) and the final
-        # refit of a fixed undistorted one (starid.identify.refine) run compiled; False: in Python
-        self._compiled_verify = self._compiled_refine = True
-        self._cone_cache: tuple[NDArray, float, NDArray[np.int64], NDArray] | None = None
+        # the parts (each told what it reads; the catalogue view is their shared context)
+        self.view = CatalogView(catalog, camera, self.vectors, self.ids, self._tree,
+                                self.index, kernels.index_arrays(self.index, None, self._sky))
+        self.verifier = Verifier(self.view, self.centroid_sigma_px, self.max_sep_rad,
+                                 self._fov_uncertain)
+        self.refiner = Refiner(self.view, camera, self.centroid_sigma_px, fit_camera,
+                               self._fov_uncertain)
+        self.triad = TriadSearch(self.view, self.verifier, self.triad_params, p_false_max)
+        self.bleif = BleifSearch(self.view, self.verifier, self.bleif_params, p_false_max,
+                                 self.tolerance_rad)
+        self.tracker = Tracker(self.view, self.verifier, camera, self.centroid_sigma_px,
+                               self.tolerance_rad, self.p_false_max_tracking,
+                               self.max_fix_sigma_px, self.whole_streak_px)
+        self.search = PatternSearch(
+            self.view, self.verifier, self.refiner, camera, tolerance_rad=self.tolerance_rad,
+            centroid_sigma_px=self.centroid_sigma_px, cache_tag=tag, n_min=n_min, n_max=n_max,
+            p_false_max=p_false_max, max_detections=self.max_detections,
+            max_patterns=self.max_patterns, work_budget=self.work_budget,
+            fov_error_deg=self.fov_error_deg, fov_range_deg=fov_range_deg, faithful=faithful,
+            n_bands=self.n_bands, dec_check=dec_check)
 
     # --- public -----------------------------------------------------------------------
 
@@ -187,10 +233,14 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         shape raises.
         """
         t0 = time.perf_counter()
-        if prior is None and type(detections) is np.ndarray:
-            sol = self._solve_lean(detections, t0)
-            if sol is not None:
-                return sol
+        if prior is None and type(detections) is np.ndarray and self.method == "nstar":
+            lean = self.search.solve_lean(detections, t0)
+            if lean is not None:
+                sol, final = lean
+                if final:
+                    return sol
+                return self._rest_checked(sol, detections,
+                                          detections[:self.max_detections], t0)
         xy, problem = self._parse(detections, min_count=2 if prior is not None else 3)
         if problem:
             return Solution(False, problem, time_s=time.perf_counter() - t0,
@@ -198,7 +248,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         fallback_note = ""
         if prior is not None:
             if prior.k * prior.sigma_deg <= self.max_tracking_cone_deg:
-                sol = self._solve_tracking(xy, prior, t0)
+                sol = self.tracker.solve(xy, prior, t0)
                 if sol.ok:
                     return self._cross_checked(sol, detections, xy, t0)
                 fallback_note = f"tracking failed ({sol.reason}); "
@@ -219,16 +269,16 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         """The frame identified without a prior (the configured method), refined; with the
         n-star method at the focal guesses ``cams`` (default: all the FOV range needs)."""
         if self.method in ("triad", "bleif"):
-            sol = self._solve_triad(xy) if self.method == "triad" else self._solve_bleif(xy)
-            sol = self._refine(sol, self._all_xy(detections, xy))
+            sol = (self.triad if self.method == "triad" else self.bleif).solve(xy)
+            sol = self.refiner.refine(sol, self._all_xy(detections, xy))
             return replace(sol, time_s=time.perf_counter() - t0, n_detections=len(xy),
                            patterns_tried=1)
-        return self._solve_refined(xy, cams or self._focal_guesses(),
-                                   self._all_xy(detections, xy, mark_outside=False), t0)
+        return self.search.solve_refined(xy, cams or self._focal_guesses(),
+                                         self._all_xy(detections, xy, mark_outside=False), t0)
 
     def _focal_guesses(self) -> list[Camera]:
         return [self.camera.scaled(k) if k != 1.0 else self.camera
-                for k in self._focal_scales()]
+                for k in self.search.focal_scales()]
 
     def _rest_checked(self, sol: Solution, detections, xy: NDArray, t0: float) -> Solution:
         """A lost-in-space fix that explains fewer than half of the detections the search
@@ -249,13 +299,13 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         # past the search's, their count (the common case: no set to build)
         n_all, n = len(detections.xy if hasattr(detections, "xy") else detections), len(xy)
         n_used = len(sol.matches) if n_all <= n else sum(d < n for d, _ in sol.matches)
-        if not self._rest_wanted(n_used, n):
+        if not self.search.rest_wanted(n_used, n):
             return sol
         used = {d for d, _ in sol.matches}
         rest = np.array([i for i in range(len(xy)) if i not in used], dtype=np.int64)
         # the camera the fix fitted; the first patterns of the rest (its brightest): stars
         # left over in numbers are found there, and a rest of noise costs little
-        other, tried = self._solve_at(np.ascontiguousarray(xy[rest]),
+        other, tried = self.search.solve_at(np.ascontiguousarray(xy[rest]),
                                       [sol.camera or self.camera], _CHECK_PATTERNS)
         if not other.ok:
             return replace(sol, time_s=time.perf_counter() - t0,
@@ -264,7 +314,7 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         other = replace(other, matches=[(int(rest[d]), h) for d, h in other.matches],
                         candidates=[replace(c, matches=[(int(rest[d]), h) for d, h in c.matches])
                                     for c in other.candidates])
-        other = self._refine(other, self._all_xy(detections, xy))
+        other = self.refiner.refine(other, self._all_xy(detections, xy))
         apart = math.degrees(rot.angle_between(other.q_cam_icrs, sol.q_cam_icrs))
         total = sol.patterns_tried + tried
         if apart <= math.degrees(3 * self.tolerance_rad):  # the same attitude, found twice
@@ -352,37 +402,49 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
         True
         """
         for dec in (0.5, -0.5, 1.2, -1.2, 0.0):
-            pxy, _, idx = self._project_idx(rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0),
-                                            self.camera)
+            pxy, _, idx = self.view.project_idx(rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0),
+                                                self.camera)
             if len(idx) >= 4:
                 break
         else:
             return False
         if self.method == "nstar":
-            # the search, bounded: the kernels compile on their first call whatever it
-            # finds, and a camera whose match windows span degrees (32×24 px over 44°:
-            # 1.4° a pixel) spent ~110 s solving this frame (the fuzz's CLI cases)
-            if triangles:
-                self._with_triangles()  # built or loaded now, not in a frame's budget
-            xy8 = np.ascontiguousarray(pxy[:8])
-            sol, _ = self._solve_at(xy8, [self.camera], _WARM_UP_PATTERNS, _WARM_UP_WORK)
-            solved = self._refine(sol, xy8).ok
-            for n_det in range(3, self.max_detections + 1):  # every count's patterns (~0.1 s)
-                self._pattern_list(n_det, False)  # Renken's, searched first
-                self._pattern_list(n_det, True)
-            # the lean path's state and kernel (solve on an array), on input its check
-            # refuses: compiled or loaded whatever the camera, no search run
-            self._solve_lean(np.full((3, 2), np.nan), 0.0)
+            solved = self.search.warm_up(pxy, idx, triangles)
         else:
             solved = self.solve(pxy[:8]).ok
+            self.search.warm_up_weak(pxy, idx)
         self._parse(np.ascontiguousarray(pxy[:8]))  # its input check (compiled)
-        b_all = self.camera.pixels_to_vectors(pxy[:3])  # the weak path's quick check
-        table = PairWindows.of(b_all, self.tolerance_rad, 0.0)
-        self._quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)
-        if self._frame_path([self.camera]):  # and its compiled form (frames of noise)
-            self._weak_verified(np.ascontiguousarray(pxy[:3]), self.camera,
-                                [(1.0, np.arange(3), idx[:3], "", 0, 1)])
         return solved
+
+    def warm_up_tracking(self) -> bool:
+        """Load the compiled tracking path (:mod:`starid.tracking.kernels`, and the window
+        centroiding of :mod:`starid.detection.window_kernels`) now rather than
+        in the first tracked frame: ~0.1 s from numba's cache, or — the first time after
+        an install or an edit — ~5 s of CPU compiling it once. Call it (with
+        :meth:`Solver.warm_up`, which loads the lost-in-space kernels) before a real-time
+        loop. Returns whether a synthetic tracked frame (the catalogue seen at a fixed
+        attitude, told to the solver as a 0.01° prior) was accepted.
+
+        >>> from adfusion import starid
+        >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
+        ...                   starid.Camera.pinhole(512, 480, 25.84))
+        >>> s.warm_up_tracking()
+        True
+        """
+        from adfusion.starid.detection.windows import detect_windows  # (detect_roi: no solver)
+
+        # the compiled window centroiding (starid.detection.window_kernels) of integer and float
+        # frames, as TrackingWindows uses it
+        for dtype in (np.uint16, np.float32, np.float64):
+            img = np.full((32, 32), 100, dtype)
+            img[15:17, 15:17] = 200
+            detect_windows(img, [[15.5, 15.5]], 4)
+        for dec in (0.5, -0.5, 1.2, -1.2, 0.0):
+            q = rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0)
+            pxy, _, idx = self.view.project_idx(q, self.camera)
+            if len(idx) >= 3:
+                return self.solve(pxy[:10], prior=Prior(q, 0.01)).ok
+        return False
 
     def stars_in_view(self, q_cam_icrs) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
         """Catalogue ids and pixel positions of the catalogue stars inside the frame at an
@@ -450,102 +512,65 @@ class Solver(LostInSpace, Tracking, TriadBridge, BleifBridge, Verification, Refi
             xy = arr[:, :2]
         if len(xy) <= len(use):
             return use
-        return self._outside_as_nan(xy, len(use)) if mark_outside else xy
+        return outside_as_nan(self.camera, xy, len(use)) if mark_outside else xy
 
-    def _outside_as_nan(self, xy_all: NDArray, n_use: int) -> NDArray[np.float64]:
-        """``xy_all`` with the rows past ``n_use`` that lie outside the frame as NaN (a copy
-        when there are any: the caller's array stays as it was)."""
-        outside = ~self.camera.in_frame(xy_all[n_use:])
-        if not outside.any():
-            return xy_all
-        xy_all = xy_all.copy()
-        xy_all[n_use:][outside] = np.nan
-        return xy_all
+    def __setattr__(self, name: str, value: Any) -> None:
+        # a setting one of the parts was made with, set on the solver after it was made,
+        # reaches that part too; and any assignment drops the search's compiled one-call
+        # state (a switch of the verifier's or the refiner's reads the same way)
+        object.__setattr__(self, name, value)
+        d = self.__dict__
+        for part, attr in _PART_SETTINGS.get(name, ()):
+            held = d.get(part)
+            if held is not None:
+                setattr(held, attr, value)
+        search = d.get("search")
+        if search is not None and name != "search":
+            search.settings_changed()
 
-    def _match(self, pattern: Pattern, work_budget: int | None = None) -> NDArray[np.int64]:
-        work = self.work_budget if work_budget is None else work_budget
-        if self.faithful:
-            return match_faithful(self.vectors, pattern, self.dec_check, self._band_masks(
-                pattern))
-        if self.n_bands > 1:
-            parts = [match_indexed(self.index, pattern, work, m)
-                     for m in self._band_masks(pattern)]
-            allm = np.concatenate(parts)
-            return np.unique(allm, axis=0) if len(allm) else allm
-        return match_indexed(self.index, pattern, work)
+    # --- the compiled paths' switches (benchmarks/compiled_equivalence.py) ------------------
 
-    def _band_masks(self, pattern: Pattern) -> list[NDArray[np.bool_]] | None:
-        if self.n_bands <= 1:
-            return None
-        dec = np.arcsin(np.clip(self.vectors[:, 2], -1, 1))
-        edges = np.arcsin(np.linspace(1.0, -1.0, self.n_bands + 1))
-        o = pattern.delta_max_rad
-        return [(dec <= hi + o) & (dec >= lo - o) for hi, lo in itertools.pairwise(edges)]
+    @property
+    def _compiled_verify(self) -> bool:
+        """Whether a known camera's candidates are verified compiled (:attr:`Verifier.compiled`)."""
+        return self.verifier.compiled
 
-    def _project(self, q: NDArray, cam: Camera) -> tuple[NDArray, NDArray[np.int64]]:
-        """Catalogue stars inside the frame at attitude q: pixel positions and catalogue ids."""
-        pxy, ids, _ = self._project_idx(q, cam)
-        return pxy, ids
+    @_compiled_verify.setter
+    def _compiled_verify(self, value: bool) -> None:
+        self.verifier.compiled = value
 
-    def _project_idx(self, q: NDArray, cam: Camera, margin_rad: float = 0.0,
-                     ) -> tuple[NDArray, NDArray[np.int64], NDArray[np.int64]]:
-        """As :meth:`_project`, plus catalogue indices; ``margin_rad`` widens the cone and
-        lets stars just outside the frame in (a prior's error can bring them in)."""
-        pxy, idx = self._predict(rot.to_matrix(q), cam, margin_rad)
-        return pxy, self.ids[idx], idx
+    @property
+    def _compiled_refine(self) -> bool:
+        """Whether the final refit runs compiled (:attr:`Refiner.compiled`)."""
+        return self.refiner.compiled
 
-    def _predict(self, R: NDArray, cam: Camera, margin_rad: float,
-                 ) -> tuple[NDArray, NDArray[np.int64]]:
-        """Pixel positions and catalogue indices of the stars in the frame at attitude R
-        (cam ← icrs), ``margin_rad`` beyond its edges."""
-        half = cam._view_half_rad + margin_rad + 1e-3
-        idx, vec = self._cone(R[2], half)  # R[2]: the camera +z axis in ICRS
-        ideal = cam._ideal_pinhole
-        if ideal is None:
-            pxy = cam.vectors_to_pixels(vec @ R.T)
-            inside = cam.in_frame(pxy, margin=-margin_rad / cam.pixel_scale_rad)
-            return pxy[inside], idx[inside]
-        # an undistorted pinhole: rotation and projection as one homogeneous matrix
-        # (u·z, v·z, z) = H R r — per frame, a few numpy calls instead of a dozen
-        (a00, a01), (a10, a11) = ideal[2].tolist()
-        c0, c1 = ideal[3].tolist()
-        H = np.array([[a00, a10, c0], [a01, a11, c1], [0.0, 0.0, 1.0]])
-        h = vec @ (H @ R).T
-        z = h[:, 2]
-        pxy = h[:, :2] / z[:, None]
-        m = -margin_rad / cam.pixel_scale_rad
-        lo, hi_x, hi_y = -0.5 + m, cam.width - 0.5 - m, cam.height - 0.5 - m
-        u, v = pxy[:, 0], pxy[:, 1]
-        inside = (z > 0) & (u >= lo) & (u <= hi_x) & (v >= lo) & (v <= hi_y)
-        return pxy[inside], idx[inside]
+    @_compiled_refine.setter
+    def _compiled_refine(self, value: bool) -> None:
+        self.refiner.compiled = value
 
-    def _cone(self, axis: NDArray, half_rad: float) -> tuple[NDArray[np.int64], NDArray]:
-        """Catalogue stars (indices, vectors) within at least ``half_rad`` of ``axis``: a
-        superset from a cached cone 2° wider, reused while it still covers the request — a
-        tracking camera moves little between frames, so one KD-tree query serves many.
-        Callers keep only the stars in the frame, so results do not depend on the cache
-        (indices stay sorted, as the tree returns them)."""
-        cache = self._cone_cache
-        if cache is not None:
-            c_axis, c_half, idx, vec = cache
-            spare = c_half - half_rad
-            if spare >= 0 and float(axis @ c_axis) >= math.cos(spare):
-                return idx, vec
-        c_half = min(half_rad + _CONE_SPARE_RAD, math.pi)
-        idx = np.array(self._tree.query_ball_point(axis, 2 * math.sin(c_half / 2)),
-                       dtype=np.int64)
-        idx.sort()  # (a single point's query is not sorted by the tree)
-        vec = self.vectors[idx]
-        self._cone_cache = (np.array(axis, dtype=np.float64), c_half, idx, vec)
-        return idx, vec
+    @property
+    def _compiled(self) -> bool:
+        """Whether the search runs compiled (``PatternSearch._compiled``; False with the
+        matchers kept in numpy)."""
+        return self.search._compiled
 
-    def _solution(self, c: Candidate, counter: int, path: str,
-                  cands: list[Candidate]) -> Solution:
-        return Solution(
-            True, "", q_cam_icrs=c.q_cam_icrs, matches=c.matches, matching_counter=counter,
-            covariance=c.covariance, p_false=c.p_false, path=path, candidates=cands,
-            residuals_rad=c.residuals_rad, camera=c.camera,
-        )
+    @_compiled.setter
+    def _compiled(self, value: bool) -> None:
+        self.search._compiled = value
+
+    @property
+    def _frame_kernel(self) -> bool:
+        """Whether a known ideal pinhole's search, verification and refit run as one
+        compiled call (``PatternSearch._frame_kernel``; deleting it restores the default)."""
+        return self.search._frame_kernel
+
+    @_frame_kernel.setter
+    def _frame_kernel(self, value: bool) -> None:
+        self.search._frame_kernel = value
+
+    @_frame_kernel.deleter
+    def _frame_kernel(self) -> None:
+        del self.search._frame_kernel
 
 
 def _replace(sol: Solution, **kw) -> Solution:

@@ -1,6 +1,7 @@
 """docs/concepts/architecture.md against the code: the generated import graph keeps the
-layers of pyproject's import-linter contracts, the page keeps its marker, and every
-``adfusion.…`` name the page cites exists."""
+layers of pyproject's import-linter contracts (an independent check of them: read with
+``ast`` by docs/gen_architecture.py, not by import-linter), the page keeps its marker and
+its place in mkdocs.yml, and every ``adfusion.…`` name the page cites exists."""
 
 from __future__ import annotations
 
@@ -79,16 +80,39 @@ def test_no_upward_edge(contract):
 
 def test_the_table_has_every_room():
     table = gen.graph_table()
-    for room in ("maths", "plain", "starid", "starid.camera", "starid.identify", "logs",
-                 "sensors", "estimation", "pointing", "basilisk", "bench", "app"):
-        assert f"| {room} |" in table
+    for room in ("maths", "plain", "starid", "starid.camera", "starid.catalog",
+                 "starid.detection", "starid.identify", "starid.tracking", "starid.solver",
+                 "starid.jit_cache", "logs", "sensors", "estimation", "pointing", "basilisk",
+                 "bench", "app"):
+        assert f"| `{room}` |" in table
+    # bottom layer first, as the contracts order them
+    rows = [line.split("`")[1] for line in table.splitlines()[2:] if line.startswith("| `")]
+    assert rows.index("maths") < rows.index("starid.camera") < rows.index("starid.solver") \
+        < rows.index("sensors") < rows.index("app")
 
 
-def test_type_checking_imports_do_not_count(tmp_path):
+def test_the_chart_has_the_tables_edges():
+    text = gen.generated()
+    assert "\n```mermaid\nflowchart " in text
+    chart = text.split("```mermaid", 1)[1].split("```", 1)[0]
+    drawn = set(re.findall(r"^\s*(\w+) --> (\w+)$", chart, re.MULTILINE))
+    table = {(gen._node(a), gen._node(b)) for a, bs in gen.room_edges().items() for b in bs}
+    assert drawn == table and len(drawn) > 20
+
+
+def test_what_counts_as_an_import():
     import ast
-    tree = ast.parse("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
-                     "    import adfusion.app\nelse:\n    import adfusion.maths\n"
-                     "def f():\n    import adfusion.logs\n")
+    tree = ast.parse('''"""Example:
+    >>> import adfusion.bench
+"""
+from typing import TYPE_CHECKING
+if TYPE_CHECKING:
+    import adfusion.app
+else:
+    import adfusion.maths
+def f():
+    import adfusion.logs
+''')
     names = {a.name for n in gen._import_nodes(tree) if isinstance(n, ast.Import)
              for a in n.names}
     assert names == {"adfusion.maths", "adfusion.logs"}
@@ -96,6 +120,8 @@ def test_type_checking_imports_do_not_count(tmp_path):
 
 def test_the_page_holds_the_marker():
     assert gen.MARK in PAGE.read_text(encoding="utf-8")
+    config = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")  # !!python tags: not YAML-safe
+    assert "  - docs/gen_architecture.py\n" in config and f": {gen.PAGE}\n" in config
 
 
 def _resolves(dotted: str) -> bool:

@@ -77,7 +77,7 @@ def test_the_pair_lists_coarse_table_finds_the_rows_a_plain_search_finds(cat):
     windows anywhere, narrow or wide, with edges on stored cosines (ties) and beyond the
     list's reach."""
     solver = starid.Solver(cat, starid.Camera.pinhole(1024, 768, 15.0))
-    ix = solver._ix
+    ix = solver.view.ix
     pc, bins, max_sep = ix[3], ix[9], ix[8]
     rng = np.random.default_rng(3)
     lows = np.concatenate([rng.uniform(0, max_sep * 1.2, 300),
@@ -106,9 +106,9 @@ def test_without_a_refit_the_one_call_path_leaves_the_verified_fit(cat):
         xy, _ = sky_frame(cat, cam, rng)
         xy = np.ascontiguousarray(xy[: solver.max_detections])
         solver._frame_kernel = True
-        a, tried_a = solver._solve_at(xy, [cam])
+        a, tried_a = solver.search.solve_at(xy, [cam])
         solver._frame_kernel = False
-        b, tried_b = solver._solve_at(xy, [cam])
+        b, tried_b = solver.search.solve_at(xy, [cam])
         assert a.ok and a.sigma_px is None
         _same(a, b)
         assert tried_a == tried_b
@@ -159,7 +159,7 @@ def test_a_detection_outside_the_frame_beyond_the_search_keeps_the_others_rows(c
         if frames == 3:
             break
         xy, q = sky_frame(cat, cam, rng)
-        pxy, _, _ = solver._project_idx(q, cam)
+        pxy, _, _ = solver.view.project_idx(q, cam)
         near = np.flatnonzero((pxy[:, 0] < 1.0) & (pxy[:, 1] > 5) & (pxy[:, 1] < 760))
         if len(xy) < 16 or not len(near):
             continue
@@ -249,14 +249,14 @@ def _search(solver, b, budget, store):
     """kernels.search of directions ``b`` (N, 3) at the solver's own camera, from a frame's
     first trial through its whole pattern list: (state, sel, rows)."""
     pix = solver.camera.pixel_scale_rad
-    pats, plen, _ = solver._pattern_list(len(b), True)
+    pats, plen, _ = solver.search._pattern_list(len(b), True)
     state = np.array([0, 0, 0, -1, 0, kernels.NOTE_NONE, 0, 0], dtype=np.int64)
     sel, rows, _, _, _ = kernels.search(
-        solver._ix, state, pats, plen, budget,
+        solver.view.ix, state, pats, plen, budget,
         np.zeros((1, solver.max_patterns + 2), dtype=np.int64), np.zeros(1, dtype=np.int64),
-        b[None], solver.tolerance_rad, 0.0, np.array([solver._match_radius_px() * pix]),
+        b[None], solver.tolerance_rad, 0.0, np.array([solver.verifier.match_radius_px() * pix]),
         np.array([np.sqrt(2.0) * solver.centroid_sigma_px * pix]), solver.p_false_max,
-        solver.work_budget, solver._scratch(), store)
+        solver.work_budget, solver.search._scratch(), store)
     return state, sel, rows
 
 
@@ -269,14 +269,14 @@ def test_the_search_keeps_first_three_star_assignments_without_changing_a_trial(
     solver = starid.Solver(cat, cam)
     rng = np.random.default_rng(21)
     pix = cam.pixel_scale_rad
-    radius = np.array([solver._match_radius_px() * pix])
+    radius = np.array([solver.verifier.match_radius_px() * pix])
     floor = np.array([np.sqrt(2.0) * solver.centroid_sigma_px * pix])
     reused = 0
     for _ in range(8):
         xy, _ = sky_frame(cat, cam, rng, n_false=8)
         xy = np.ascontiguousarray(xy[: solver.max_detections])
         b = cam.pixels_to_vectors(xy)
-        pats, plen, _ = solver._pattern_list(len(xy), True)
+        pats, plen, _ = solver.search._pattern_list(len(xy), True)
         state, sel, rows = _search(solver, b, 200, kernels.triangle_store())
         # the same walk, every pattern matched afresh
         masks, seen, stop = [], set(), None
@@ -290,14 +290,14 @@ def test_the_search_keeps_first_three_star_assignments_without_changing_a_trial(
             key = (*s2[:3].tolist(), chir)
             reused += key in seen
             seen.add(key)
-            r2, over, _ = kernels.match(solver._ix, lo, hi, chir, solver.work_budget,
-                                        solver._scratch())
+            r2, over, _ = kernels.match(solver.view.ix, lo, hi, chir, solver.work_budget,
+                                        solver.search._scratch())
             if over:
                 continue
             if not len(r2):
                 masks.append(mask)
                 continue
-            q = kernels.quick_checks(solver._ix, b, s2, r2, ang, tol, chir != 0, p + 1,
+            q = kernels.quick_checks(solver.view.ix, b, s2, r2, ang, tol, chir != 0, p + 1,
                                      radius[0], floor[0])
             if any(ok and pf <= solver.p_false_max for ok, pf in zip(q[0], q[1],
                                                                       strict=True)):
@@ -340,7 +340,7 @@ def test_the_kept_first_three_star_assignments_are_bounded():
 
 def test_the_lean_path_solves_every_frame_as_the_general_path_does(cat):
     """Solver.solve takes a short path for an (N, 2) float64 array without a prior
-    (LostInSpace._solve_lean); the same detections as a list go the general way. Every
+    (PatternSearch.solve_lean); the same detections as a list go the general way. Every
     field alike, on frames that end every way: identified (refit, rest of the frame
     checked), several attitudes, weak candidates, nothing found, more detections than
     the search uses (some outside the frame), and input the check refuses."""
@@ -348,13 +348,13 @@ def test_the_lean_path_solves_every_frame_as_the_general_path_does(cat):
     solver = starid.Solver(cat, cam)
     rng = np.random.default_rng(57)
     outcomes, calls = set(), []
-    orig = solver._frame_solution
+    orig = solver.search._frame_solution
 
     def counted(*a, **k):
         calls.append("first" in k)
         return orig(*a, **k)
 
-    solver._frame_solution = counted
+    solver.search._frame_solution = counted
     frames = []
     for k in range(40):
         kind = k % 5
@@ -377,7 +377,7 @@ def test_the_lean_path_solves_every_frame_as_the_general_path_does(cat):
         if a.ok and len(xy) > solver.max_detections:
             outcomes.add("beyond the search's detections")
     assert {"ok", "ambiguous", "bad input", "beyond the search's detections"} <= outcomes
-    assert isinstance(solver._lean[0], frame_kernels.LeanState)  # the lean path ran
+    assert isinstance(solver.search._lean[0], frame_kernels.LeanState)  # the lean path ran
     assert any(calls)  # and some frames continued from its first call
 
 
@@ -397,10 +397,10 @@ def test_the_lean_state_is_made_once_and_each_thread_gets_its_own_work_arrays(ca
     frames.append(rng.uniform([0, 0], [cam.width - 1, cam.height - 1], (10, 2)))
     solver.warm_up()  # the triangles join the index (a new index: a new state)
     solver.solve(frames[0])
-    state = solver._lean
+    state = solver.search._lean
     for xy in frames:
         _same(solver.solve(xy), solver.solve(xy.tolist()))
-    assert solver._lean is state
+    assert solver.search._lean is state
     out = []
     worker = threading.Thread(target=lambda: out.append(solver.solve(frames[1])))
     worker.start()
@@ -410,7 +410,7 @@ def test_the_lean_state_is_made_once_and_each_thread_gets_its_own_work_arrays(ca
     for xy in frames[-3:]:
         _same(wide.solve(xy), wide.solve(xy.tolist()))
     solver.n_min = solver.n_min  # any assignment
-    assert "_lean" not in vars(solver)
+    assert "_lean" not in vars(solver.search)
 
 
 def test_a_setting_assigned_while_the_state_is_made_is_not_lost(cat, monkeypatch):
@@ -459,14 +459,14 @@ def test_deleting_an_attribute_drops_the_state_and_a_solver_pickles_and_copies(c
     xy = np.ascontiguousarray(sky_frame(cat, cam, np.random.default_rng(5), n_false=1)[0])
     solver._frame_kernel = False
     solver.solve(xy)
-    assert solver._lean is False  # the lean path does not apply
+    assert solver.search._lean is False  # the lean path does not apply
     del solver._frame_kernel
     a = solver.solve(xy)
-    assert isinstance(solver._lean[0], frame_kernels.LeanState)
+    assert isinstance(solver.search._lean[0], frame_kernels.LeanState)
     for twin in (pickle.loads(pickle.dumps(solver)), copy.deepcopy(solver)):
-        assert "_lean" not in vars(twin)
+        assert "_lean" not in vars(twin.search)
         _same(twin.solve(xy), a, fitted=True)
-        assert isinstance(twin._lean[0], frame_kernels.LeanState)
+        assert isinstance(twin.search._lean[0], frame_kernels.LeanState)
 
 
 def test_the_compiled_paths_solutions_are_made_as_their_classes_make_them(cat):
@@ -553,7 +553,7 @@ def test_a_result_longer_than_the_lean_paths_arrays_grows_them(cat, monkeypatch)
     xy, _ = sky_frame(cat, cam, np.random.default_rng(4), n_false=8)
     general = solver.solve(xy.tolist())
     monkeypatch.setattr(lost_in_space, "_LEAN_OUT", 8)
-    solver._drop_scratch()
+    solver.search._drop_scratch()
     _same(solver.solve(np.ascontiguousarray(xy)), general)
     assert len(lost_in_space._SCRATCH.lean[2]) > 8
 

@@ -140,7 +140,7 @@ _LONG_RUN_WRONG = [
     (1875421584, 20.0, 11, 0.7, 0.1, "none", 10.0, 3.0),
     # seed 41 (at af4f38c): a right prior of σ 0.5°, 4 stars, the roll resting on one of
     # them paired with its Pleiades neighbour: 1.67° off at p_false 3.5e-6
-    # (Tracking._alternatives_of_critical_stars)
+    # (Tracker._alternatives_of_critical_stars)
     (996432571, 12.0, 2, 0.7, 1.5, "prior", 0.05, 0.5),
     # seed 59 (at c8d9d57): a prior 20σ wrong, 70 % dropped, 9 false: tracking fitted 3 of
     # 29 detections 1.14° off at p_false 8.4e-5 and lost in space found nothing

@@ -495,10 +495,10 @@ def test_compiled_match_mirror_and_work_budget(small_sky):
 
 
 def test_compiled_rotation_equals_the_svd_one():
-    """The kernels' Jacobi SVD gives the rotation of starid.solver._rotation_from_pairs
+    """The kernels' Jacobi SVD gives the rotation of starid.identify.verify.rotation_from_pairs
     (to rounding scaled by the problem's conditioning), and the same collinear verdict."""
     from adfusion.starid.identify import kernels
-    from adfusion.starid.solver import _rotation_from_pairs
+    from adfusion.starid.identify.verify import rotation_from_pairs as _rotation_from_pairs
 
     rng = np.random.default_rng(0)
     collinear = 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from adfusion.starid.camera.view import stars_in_view
+from adfusion.starid.identify import search_state
 
 from adfusion import starid
 from adfusion.maths import rotations as rot
@@ -136,7 +137,7 @@ def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
     nothing is skipped (it cannot match), yet counted in ``patterns_tried`` (shown on the
     numpy search, which the compiled one equals)."""
     calls: list[tuple[frozenset, int]] = []
-    real = type(solver)._match
+    real = type(solver.search)._match
     sels: list[frozenset] = []
 
     def spy(self, pattern, work_budget=None):
@@ -145,14 +146,14 @@ def test_supersets_of_a_pattern_that_matched_nothing_are_counted_not_matched(
         return out
 
     monkeypatch.setattr(solver, "_compiled", False)
-    monkeypatch.setattr(type(solver), "_match", spy)
-    real_pattern = starid.solver._PairWindows.pattern
+    monkeypatch.setattr(type(solver.search), "_match", spy)
+    real_pattern = search_state.PairWindows.pattern
 
     def pattern(self, sel, b_all):  # the detections of the pattern about to be matched
         sels.append(frozenset(sel.tolist()))
         return real_pattern(self, sel, b_all)
 
-    monkeypatch.setattr(starid.solver._PairWindows, "pattern", pattern)
+    monkeypatch.setattr(search_state.PairWindows, "pattern", pattern)
     rng = np.random.default_rng(12)
     skipped = 0
     for _ in range(6):
@@ -173,13 +174,15 @@ def _quick_check_numpy(solver, b_all, sel, assign, cam, angles, tol, trials, mir
     """The quick check as the numpy solver computed it (KD-tree association, scipy's
     binomial tail, starid.identify.verify's chance estimate): the reference for the kernel."""
     from adfusion.starid.identify.verify import binomial_tail, expected_chance_patterns
-    from adfusion.starid.solver import _keeps_pattern, _one_to_one, _rotation_from_pairs
+    from adfusion.starid.identify.verify import keeps_pattern as _keeps_pattern
+    from adfusion.starid.identify.verify import one_to_one as _one_to_one
+    from adfusion.starid.identify.verify import rotation_from_pairs as _rotation_from_pairs
     from scipy.spatial import cKDTree
 
     R = _rotation_from_pairs(b_all[sel], solver.vectors[assign])
     if R is None:
         return None
-    radius = solver._match_radius_px() * cam.pixel_scale_rad
+    radius = solver.verifier.match_radius_px() * cam.pixel_scale_rad
     d, j = cKDTree(solver.vectors).query(b_all @ R, distance_upper_bound=2 * np.sin(radius / 2))
     det_i, cat_i = _one_to_one(d, j)
     if not _keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
@@ -190,7 +193,7 @@ def _quick_check_numpy(solver, b_all, sel, assign, cam, angles, tol, trials, mir
     tol_fit = np.minimum(np.maximum(resid, floor), tol)
     e_trials = trials * expected_chance_patterns(angles, tol_fit, len(solver.vectors), mirror)
     p = e_trials * binomial_tail(len(det_i) - len(sel), len(b_all) - len(sel),
-                                 solver._p_hit(int(assign[0]), radius))
+                                 solver.verifier.p_hit(int(assign[0]), radius))
     return min(1.0, p), R, e_trials, det_i, cat_i
 
 
@@ -218,12 +221,12 @@ def test_compiled_quick_checks_equal_the_numpy_formulas(solver, cat, cam):
             pattern = starid.identify.nstar.Pattern.from_angles(ang, solver.tolerance_rad,
                                                        starid.identify.nstar.chirality_of(
                                                            b_all[sel], 2 * solver.tolerance_rad))
-            assigns = solver._match(pattern)
+            assigns = solver.search._match(pattern)
             if len(assigns) == 0:
                 continue
             trials = int(rng.integers(1, 300))
             mirror = pattern.chirality != 0
-            got = solver._quick(b_all, None, sel, assigns, cam, trials, (ang, tol, mirror))
+            got = solver.verifier.quick(b_all, None, sel, assigns, cam, trials, (ang, tol, mirror))
             assert len(got) == len(assigns)
             for a, g in zip(assigns, got, strict=True):
                 want = _quick_check_numpy(solver, b_all, sel, a, cam, ang, tol, trials, mirror)
@@ -574,7 +577,7 @@ def test_compiled_nearest_star_equals_the_kd_tree(solver):
         r /= np.linalg.norm(r)
         far += float(r @ v[anchor]) < np.cos(solver.max_sep_rad)
         d, j = tree.query(r, distance_upper_bound=bound)
-        got, d2 = kernels._nearest(solver._ix, r, anchor, radius, bound * bound)
+        got, d2 = kernels._nearest(solver.view.ix, r, anchor, radius, bound * bound)
         if np.isfinite(d):
             found += 1
             assert got == j and np.sqrt(d2) == pytest.approx(d, rel=1e-12)

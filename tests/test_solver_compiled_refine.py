@@ -1,6 +1,6 @@
 """A candidate's verification and the final refit, compiled (kernels.verify_candidate,
-kernels.refine_pinhole), against the Python code they replace (verify.Verification._verify,
-refine.Refinement._refine): the same identifications, paths, trials, pairs and notes,
+kernels.refine_pinhole), against the Python code they replace (verify.Verifier.verify,
+refine.Refiner.refine): the same identifications, paths, trials, pairs and notes,
 p_false to 1e-12, the fit to rounding — on frames with noise, false stars, dropped stars,
 blurred centroids and sparse fields. benchmarks/compiled_equivalence.py runs the same
 comparison on the benchmark's frames."""

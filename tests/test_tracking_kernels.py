@@ -68,13 +68,13 @@ def _same(a, b):
 
 def _compare(solver, cases):
     compiled = accepted = 0
-    tight = solver._match_radius_px()
+    tight = solver.verifier.match_radius_px()
     for xy, prior in cases:
         gate = np.radians(prior.k * prior.sigma_deg)
         wide = max(gate / solver.camera.pixel_scale_rad * 1.2 + tight, tight)
         assert wide <= 2.5 * tight  # every case is a tight prior: the compiled path's
-        a = solver._track_compiled(xy, prior, gate, tight, wide, time.perf_counter())
-        b = solver._track_numpy(xy, prior, time.perf_counter())
+        a = solver.tracker.track_compiled(xy, prior, gate, tight, wide, time.perf_counter())
+        b = solver.tracker.track_numpy(xy, prior, time.perf_counter())
         if a is None:  # collinear: the numpy path's words
             assert "collinear" in b.reason
             continue
@@ -104,8 +104,8 @@ def test_solve_takes_the_compiled_path_for_a_tight_prior(wide, monkeypatch):
     distorted camera, through numpy, with the same answer)."""
     cat, cam, s = wide
     calls = []
-    real = tracking.Tracking._track_compiled
-    monkeypatch.setattr(tracking.Tracking, "_track_compiled",
+    real = tracking.Tracker.track_compiled
+    monkeypatch.setattr(tracking.Tracker, "track_compiled",
                         lambda self, *a: calls.append(1) or real(self, *a))
     q = rot.q_cam_icrs_from_radec_roll(1.0, 0.4, 0.3)
     _, xy = stars_in_view(cat, cam, q)

@@ -23,8 +23,8 @@ from adfusion import starid
 def solver():
     s = starid.Solver(starid.Catalog.hipparcos(mag_limit=6.0, epoch=2025.0),
                       starid.Camera.pinhole(1024, 768, 15.0))
-    s._with_triangles()
-    assert s._ix[13] > 0, "no triangle table for V < 6 in a 15° field"
+    s.search._with_triangles()
+    assert s.view.ix[13] > 0, "no triangle table for V < 6 in a 15° field"
     return s
 
 
@@ -64,7 +64,7 @@ def test_looked_up_triangles_are_the_scans_rows(solver):
         b = cam.pixels_to_vectors(xy)
         pats = [*list(itertools.combinations(range(len(b)), 3))[::3], tuple(range(6))]
         tol = solver.tolerance_rad * (1, 3)[f % 4 // 2]
-        n, k, m = _rows_both_ways(solver._ix, ix_scan, b, pats, tol, 0.005 * (f % 3 == 0),
+        n, k, m = _rows_both_ways(solver.view.ix, ix_scan, b, pats, tol, 0.005 * (f % 3 == 0),
                                   work)
         rows, looked_up, most = rows + n, looked_up + k, max(most, m)
     assert looked_up > 0.9 * rows  # most looked up; those reaching past the list scanned
@@ -209,8 +209,8 @@ def test_noise_frames_end_as_they_did_without_the_table_and_the_map(solver):
     """Frames of random detections spend the whole budget: with the triangle table and
     the sky map the same trials, weak candidates and p_false as without them."""
     bare = starid.Solver(solver.catalog, solver.camera)
-    bare._triangles_done = True
-    bare._ix = kernels.index_arrays(bare.index)
+    bare.search._triangles_done = True
+    bare.search._ix = kernels.index_arrays(bare.index)
     rng = np.random.default_rng(21)
     cam = solver.camera
     for _ in range(25):

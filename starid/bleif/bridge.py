@@ -12,27 +12,61 @@ solver's p_false (1.0 for a candidate the projected catalogue does not confirm).
 solver accepts when exactly one distinct attitude among them verifies.
 
 Example:
-    >>> from adfusion.starid.solver import Solver
-    >>> issubclass(Solver, BleifBridge)
+    >>> from adfusion import starid
+    >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
+    ...                   starid.Camera.pinhole(1024, 768, 15.0), method="bleif")
+    >>> isinstance(s.bleif, BleifSearch)
     True
 """
 
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from adfusion.starid.identify.solution import Candidate, Solution
+from adfusion.starid.identify.solution import Candidate, Solution, accepted_solution
 from adfusion.starid.identify.verify import distinct_candidates
 from numpy.typing import NDArray
 
-__all__ = ["BleifBridge"]
+if TYPE_CHECKING:
+    from adfusion.starid.identify.catalog_view import CatalogView
+    from adfusion.starid.identify.verify import Verifier
+
+__all__ = ["BleifSearch"]
 
 
-class BleifBridge:
-    """``method="bleif"`` (a mixin of :class:`starid.Solver`)."""
+class BleifSearch:
+    """``method="bleif"``: Bleif's reference-star matcher as the operator runs it, then the
+    solver's verification.
 
-    def _solve_bleif(self, xy: NDArray) -> Solution:
+    Args:
+        view: the catalogue (:class:`~adfusion.starid.identify.catalog_view.CatalogView`:
+            the catalogue itself, its ids and the camera).
+        verifier: the solver's :class:`~adfusion.starid.identify.verify.Verifier`.
+        params: Bleif's parameters (:class:`~adfusion.starid.bleif.matcher.BleifParams`;
+            ``None``: its defaults).
+        p_false_max: the acceptance threshold on the false-match probability.
+        tolerance_rad: the pair-distance tolerance (two candidates this close, ×3, are one
+            attitude).
+
+    The pattern catalogue is built on the first :meth:`solve`.
+    """
+
+    def __init__(self, view: CatalogView, verifier: Verifier, params: Any,
+                 p_false_max: float, tolerance_rad: float) -> None:
+        self.view = view
+        self.verifier = verifier
+        self.params = params
+        self.p_false_max = p_false_max
+        self.tolerance_rad = float(tolerance_rad)
+        self.patterns = None
+
+    @property
+    def camera(self):
+        return self.view.camera
+
+    def solve(self, xy: NDArray) -> Solution:
         """Bleif's MusterPr matcher on the brightest detections, each candidate through
         the same verification as a triad match.
 
@@ -51,10 +85,10 @@ class BleifBridge:
         from adfusion.starid.bleif.operator import IdentificationSession
         from adfusion.starid.bleif.patterns import PatternCatalog
 
-        params = self.bleif_params or BleifParams()
-        if self._bleif_patterns is None:
-            self._bleif_patterns = PatternCatalog.build(self.catalog, params.n_stars)
-        pc = self._bleif_patterns
+        params = self.params or BleifParams()
+        if self.patterns is None:
+            self.patterns = PatternCatalog.build(self.view.catalog, params.n_stars)
+        pc = self.patterns
         n = min(params.n_marked, len(xy))
         if n < 3:
             return Solution(False, f"bleif: need ≥ 3 detections to mark, got {len(xy)}",
@@ -66,7 +100,7 @@ class BleifBridge:
         path = f"bleif ref {int(marks[0])}"
         trials = 1
         if cands:
-            return self._bleif_decide(xy, b_all, marks, cands, trials, params, len(cands),
+            return self._decide(xy, b_all, marks, cands, trials, params, len(cands),
                                       path)
         n_fit = 0
         for ref, k_miss, more, _ in detection_selections(pc, xy, self.camera, params,
@@ -76,7 +110,7 @@ class BleifBridge:
             if not more:
                 continue
             marked = np.array(selection_of(ref, len(xy), params))
-            sol = self._bleif_decide(xy, b_all, marked, more, trials, params, n_fit,
+            sol = self._decide(xy, b_all, marked, more, trials, params, n_fit,
                                      f"bleif ref {ref} k_miss {k_miss}")
             if sol.ok or sol.reason.startswith("ambiguous"):
                 return sol
@@ -84,13 +118,13 @@ class BleifBridge:
                                "after the operator's selection gave none)",
                         matching_counter=n_fit, path="bleif")
 
-    def _bleif_decide(self, xy: NDArray, b_all: NDArray, marked: NDArray, cands: list,
+    def _decide(self, xy: NDArray, b_all: NDArray, marked: NDArray, cands: list,
                       trials: int, params, n_fit: int, path: str) -> Solution:
         """The solver's verification of one selection's candidates (``marked``: the
         detection of each marked star, in marking order) and its answer, the candidates
         listed in the selection's order."""
-        pos = {int(h): k for k, h in enumerate(self.ids)}
-        pc = self._bleif_patterns
+        pos = {int(h): k for k, h in enumerate(self.view.ids)}
+        pc = self.patterns
         tol = np.radians(2.0 * np.degrees(1.0 / self.camera.K[0, 0]) * params.t_pix)
         listed: list[Candidate] = []
         for c in cands:
@@ -100,11 +134,11 @@ class BleifBridge:
             ang = np.arccos(np.clip(b_all[sel] @ b_all[sel].T, -1, 1))
             np.fill_diagonal(ang, 0.0)
             chance = (ang, np.full(ang.shape, tol), True)
-            quick = self._quick(b_all, None, sel, assign[None], self.camera, trials,
+            quick = self.verifier.quick(b_all, None, sel, assign[None], self.camera, trials,
                                 chance)[0]
             v, p_false = None, 1.0 if quick is None else float(quick[0])
             if quick is not None and p_false <= self.p_false_max:
-                v = self._verify(xy, self.camera, sel, assign, quick, b_all)
+                v = self.verifier.verify(xy, self.camera, sel, assign, quick, b_all)
                 if v is None or v.p_false > self.p_false_max:
                     v, p_false = None, 1.0 if v is None else v.p_false
             if v is None:  # not verified: the session's candidate, as the session gives it
@@ -113,12 +147,12 @@ class BleifBridge:
                     matches=[(int(marked[d]), h) for d, h in c.matches],
                     residuals_rad=c.residuals_rad[keep], p_false=p_false,
                     n_pattern=len(sel), camera=self.camera, covariance=c.covariance,
-                    _projector=self._project)
+                    _projector=self.view.project)
             listed.append(v)
         good = [v for v in listed if v.p_false <= self.p_false_max]
         found = distinct_candidates(good, 3 * self.tolerance_rad)
         if len(found) == 1:
-            return self._solution(found[0], n_fit, path, listed)
+            return accepted_solution(found[0], n_fit, path, listed)
         if len(found) > 1:
             return Solution(False, f"ambiguous: {len(found)} distinct attitudes verified",
                             matching_counter=n_fit, path=path, candidates=listed)

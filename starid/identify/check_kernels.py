@@ -247,7 +247,7 @@ def _nearest_in(v, nbr_idx, nbr_bin, max_sep, sky, m, sky_rad, r, anchor, radius
 @_jit
 def _rotation(b, vc):
     """Least-squares rotation (cam ← icrs) of matched directions, as
-    ``starid.solver._rotation_from_pairs`` (SVD of B = Σ b cᵀ, reflection excluded);
+    ``starid.identify.verify.rotation_from_pairs`` (SVD of B = Σ b cᵀ, reflection excluded);
     (R, proper) — proper False if collinear. The 3×3 SVD is one-sided Jacobi (columns
     of B orthogonalised by plane rotations): no LAPACK call per candidate. B, the
     rotations V and R share one allocation (a frame makes a dozen of these, and in cold

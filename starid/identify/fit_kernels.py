@@ -218,7 +218,7 @@ def _no_fit(status):
 def refine_pinhole(xy, ok_xy, det, cat, v, M, off, A, c, width, height, cone_idx, cone_vec,
                    cone_axis, cone_half, view_half, pix, r_min, sigma0, reject_sigma,
                    radius_sigma, radius_max_factor, prior_dof, q_fit, res_fit):
-    """:meth:`starid.identify.refine.Refinement._refine` for a camera that is not fitted and is an
+    """:meth:`starid.identify.refine.Refiner.refine` for a camera that is not fitted and is an
     ideal pinhole (``M``, ``off``, ``A``, ``c``: ``Camera._ideal_pinhole``): from the
     verified pairs (detections ``det`` → catalogue rows ``cat``) the attitude refitted, the
     noise estimated from the residuals, every detection associated again within the radius
@@ -408,7 +408,7 @@ def _not_verified():
 
 @_jit
 def verify_candidate(ix, b_all, R, e_trials, det, cat, sel, assign, n_xy, radius, sigma):
-    """:meth:`starid.identify.verify.Verification._verify` for a known camera: the attitude refitted
+    """:meth:`starid.identify.verify.Verifier.verify` for a known camera: the attitude refitted
     on the quick check's pairs (``det`` → ``cat``, at rotation ``R``), every detection
     associated again when that moved it by more than a quarter of the match ``radius``
     (the pattern must keep its stars), the final Wahba fit with centroid ``sigma`` (rad),

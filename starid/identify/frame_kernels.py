@@ -162,7 +162,7 @@ def _refit(ix, q, res, anchor, xy_all, ok_all, det, cat, M, off, A, c, width, he
 def solve_frame(ix, xy, xy_all, M, off, A, c, width, height, view_half, pix,
                 tolerance_rad, state, pats, plen, budget, no_match, n_no_match, max_partials,
                 work, r_min_px, sigma0_px, p_false_max, distinct_rad, refine, consts):
-    """``Solver._solve_at`` and ``Solver._refine`` of one frame for a known ideal pinhole
+    """``PatternSearch.solve_at`` and ``Refiner.refine`` of one frame for a known ideal pinhole
     (``M``, ``off``, ``A``, ``c``: ``Camera._ideal_pinhole``; ``view_half`` the half
     diagonal + 1e-3 rad, ``pix`` the pixel scale): the pattern list ``pats`` walked from
     ``state`` (:func:`starid.identify.kernels.search`'s; ``work`` its scratch), every candidate of a
@@ -289,7 +289,7 @@ def solve_frame_packed(ids, ix, xy, xy_all, M, off, A, c, width, height, view_ha
     catalogue rows as the catalogue's ``ids``: returning its ~20 arrays cost ~1 µs each
     to hand to Python, more than the Python that reads them (:func:`unpack` reads these).
     The refit comes first: an accepted frame's solution is read from the front of both
-    arrays (``LostInSpace._solve_lean``), the candidates only when asked for.
+    arrays (``PatternSearch.solve_lean``), the candidates only when asked for.
 
     Integers: the header (:data:`PACKED_HEADER`: outcome, counter, n_acc, candidates C,
     pattern stars, refit status, pairs rejected, refit pairs m, weak rows W, pattern,
@@ -462,7 +462,7 @@ def verify_weak(ix, xy, M, off, tolerance_rad, rows, r_min_px, sigma0_px, pix):
 @_jit
 def _by_detection(refit):
     """A refit's pairs and residuals sorted by detection (``np.argsort``, as
-    ``Refinement._refine_pinhole`` sorts them) — as they are when they come so already,
+    ``Refiner.refine_pinhole`` sorts them) — as they are when they come so already,
     which the refit's association and the verification's make them (a detection pairs
     once, so the order is strict and the sort would be the identity)."""
     status, d, k, q, cov, res, sigma_px, rejected = refit
@@ -585,13 +585,13 @@ def lean_call(st: LeanState) -> Callable:
     the dispatcher. The dispatcher works out every argument's type on every call, and a
     StructRef's type is found by Python code: ~2.4 µs of a frame in cold caches, ~0.5 µs
     in warm ones (docs/benchmarks.md, "One call, four arguments"). The wrapper checks
-    nothing: the caller hands it only those types (``LostInSpace._solve_lean``), which it
+    nothing: the caller hands it only those types (``PatternSearch.solve_lean``), which it
     reads as them.
 
     >>> import numpy as np
     >>> from adfusion.starid import Camera, Catalog, Solver
     >>> s = Solver(Catalog.hipparcos(mag_limit=4.0), Camera.pinhole(640, 480, 20.0))
-    >>> st, _, _, call, _ = s._lean_state()
+    >>> st, _, _, call, _ = s.search._lean_state()
     >>> none = np.zeros(0, np.int64)
     >>> call(st, np.zeros((2, 2)), none, none, none, np.zeros(0))[0] == NO_ROOM
     True

@@ -4,9 +4,11 @@ against the pattern index (compiled, :func:`starid.identify.kernels.search`, or 
 faithful and banded matchers), candidates verified (:mod:`starid.identify.verify`).
 
 Example:
-    >>> from adfusion.starid.solver import Solver
-    >>> issubclass(Solver, LostInSpace)
-    True
+    >>> from adfusion import starid
+    >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
+    ...                   starid.Camera.pinhole(1024, 768, 15.0))
+    >>> isinstance(s.search, PatternSearch), s.search.focal_scales()
+    (True, [1.0])
 """
 
 from __future__ import annotations
@@ -17,11 +19,12 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import replace
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.catalog.triangle_index import triangles_for
-from adfusion.starid.identify import frame_kernels, kernels
+from adfusion.starid.identify import frame_kernels, kernels, search_order
 from adfusion.starid.identify.candidates import (
     _accepted,
     _candidate,
@@ -29,8 +32,11 @@ from adfusion.starid.identify.candidates import (
     resolve_by_evidence,
 )
 from adfusion.starid.identify.nstar import (
+    Pattern,
     WorkBudgetExceeded,
     closest_pair_first,
+    match_faithful,
+    match_indexed,
 )
 from adfusion.starid.identify.refine import (
     _PRIOR_DOF,
@@ -38,13 +44,18 @@ from adfusion.starid.identify.refine import (
     _RADIUS_SIGMA,
     _REJECT_SIGMA,
 )
-from adfusion.starid.identify.search_order import combination_order
 from adfusion.starid.identify.search_state import PairWindows, Search, directions, input_bounds
-from adfusion.starid.identify.solution import Candidate, Solution
+from adfusion.starid.identify.solution import Candidate, Solution, accepted_solution
 from adfusion.starid.identify.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
 
-__all__ = ["MAX_BUDGET_SCALES", "REST_CHECK_SHARE", "LostInSpace"]
+if TYPE_CHECKING:
+    from adfusion.starid.identify.catalog_view import CatalogView
+    from adfusion.starid.identify.refine import Refiner
+    from adfusion.starid.identify.verify import Verifier
+
+__all__ = ["MAX_BUDGET_SCALES", "REST_CHECK_SHARE", "SCALE_STEP", "PatternSearch",
+           "focal_scales"]
 
 
 #: focal guesses the trial budget grows with (beyond, a frame gets fewer patterns per guess)
@@ -55,13 +66,16 @@ MAX_BUDGET_SCALES = 50
 _REFIT_CONSTANTS = (_REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR, float(_PRIOR_DOF))
 
 
-# the search's work arrays, one per thread (LostInSpace._scratch)
+# the search's work arrays, one per thread (PatternSearch._scratch)
 _SCRATCH = threading.local()
 
 
 # one table built at a time (solvers shared across threads)
 _TRIANGLES_LOCK = threading.Lock()
 
+
+# the bound of the warm-up's search of its synthetic frame (patterns, partial assignments)
+_WARM_UP_PATTERNS, _WARM_UP_WORK = 3, 20_000
 
 _FLOAT64 = np.dtype(np.float64)  # (an identity test: cheaper than comparing dtypes)
 
@@ -85,12 +99,127 @@ _LEAN_OUT = 1024
 _NO_PATS, _NO_COUNTS = np.zeros((0, 8), dtype=np.int64), np.zeros(0, dtype=np.int64)
 
 
-_LEAN_KEEPS = frozenset({"_lean", "_frame_camera_kept", "_cone_cache", "_triangles_done"})
+_LEAN_KEEPS = frozenset({"_lean", "_frame_camera_kept", "_triangles_done"})
+
+#: the focal-length grid's step when the field of view is searched (1 %: the pair windows
+#: widen by half a step × the pair's distance)
+SCALE_STEP = 0.01
 
 
-class LostInSpace:
-    """The lost-in-space half of :class:`starid.Solver` (a mixin: it uses the solver's
-    index, settings and verification)."""
+def focal_scales(camera: Camera, fov_error_deg: float, fov_range_deg: Any) -> list[float]:
+    """Focal-length multipliers covering a field-of-view uncertainty (1.0 first when it is
+    inside): ``fov_error_deg`` (± around ``camera``'s) or ``fov_range_deg`` (lo, hi);
+    ``[1.0]`` when the field of view is known (both 0 / None).
+
+    >>> from adfusion.starid.camera.model import Camera
+    >>> ks = focal_scales(Camera.pinhole(1024, 768, 15.0), 0.5, None)
+    >>> ks[0], len(ks), round(min(ks), 3), round(max(ks), 3)
+    (1.0, 9, 0.967, 1.035)
+    """
+    if not fov_error_deg and fov_range_deg is None:
+        return [1.0]
+    half = np.radians(camera.fov_x_deg) / 2
+    if fov_range_deg is not None:
+        # focal scale k turns the nominal FOV into 2·atan(tan(half) / k)
+        fov_lo, fov_hi = np.radians(fov_range_deg) / 2
+        lo = np.tan(half) / np.tan(fov_hi)
+        hi = np.tan(half) / np.tan(fov_lo)
+    else:
+        lo = np.tan(half) / np.tan(half + np.radians(fov_error_deg) / 2)
+        hi = np.tan(half) / np.tan(max(half - np.radians(fov_error_deg) / 2, 1e-6))
+    n = max(3, int(np.ceil(np.log(hi / lo) / np.log1p(SCALE_STEP))) + 1)
+    grid = np.exp(np.linspace(np.log(lo), np.log(hi), n))
+    order = np.argsort(np.abs(np.log(grid)))
+    rest = [float(g) for g in grid[order] if abs(np.log(g)) > 1e-12]
+    return [1.0, *rest] if lo <= 1.0 <= hi else rest
+
+
+def outside_as_nan(camera: Camera, xy_all: NDArray, n_use: int) -> NDArray[np.float64]:
+    """``xy_all`` with the rows past ``n_use`` that lie outside ``camera``'s frame as NaN
+    (a copy when there are any: the caller's array stays as it was), which the final fit
+    leaves out: dropping them instead would shift every later row.
+
+    >>> from adfusion.starid.camera.model import Camera
+    >>> outside_as_nan(Camera.pinhole(100, 80, 10.0), np.array([[5.0, 5], [500, 5]]), 1)
+    array([[ 5.,  5.],
+           [nan, nan]])
+    """
+    outside = ~camera.in_frame(xy_all[n_use:])
+    if not outside.any():
+        return xy_all
+    xy_all = xy_all.copy()
+    xy_all[n_use:][outside] = np.nan
+    return xy_all
+
+
+class PatternSearch:
+    """The lost-in-space part of :class:`starid.Solver`: Renken's patterns (and ours) of
+    a frame's detections matched against the pattern index at every focal guess, each
+    match through the verifier, the accepted one through the refiner.
+
+    Args:
+        view: the catalogue (:class:`~adfusion.starid.identify.catalog_view.CatalogView`:
+            vectors, ids, the pattern index and its compiled arrays, the projection).
+        verifier: the :class:`~adfusion.starid.identify.verify.Verifier` of candidates.
+        refiner: the :class:`~adfusion.starid.identify.refine.Refiner` of the final fit.
+        camera: the solver's camera (the nominal one when the field of view is searched).
+        settings: the :class:`~adfusion.starid.config.SolverConfig` fields it reads, by
+            name (``n_min``, ``n_max``, ``p_false_max``, ``max_detections``,
+            ``max_patterns``, ``work_budget``, ``fov_error_deg``, ``fov_range_deg``,
+            ``faithful``, ``n_bands``, ``dec_check``), with ``tolerance_rad`` and
+            ``centroid_sigma_px`` as the solver resolved them, and ``cache_tag`` (the
+            catalogue's cache key, None: no cache).
+
+    Any assignment to it (a setting, the index's arrays, the camera) drops the compiled
+    state of its one-call path (:meth:`_lean_state`): every setting a solve reads is one
+    of its attributes. :class:`starid.Solver` passes its own settings' assignments on.
+    """
+
+    def __init__(self, view: CatalogView, verifier: Verifier, refiner: Refiner,
+                 camera: Camera, *, tolerance_rad: float, centroid_sigma_px: float,
+                 cache_tag: str | None, **settings: Any) -> None:
+        self.view = view
+        self.verifier = verifier
+        self.refiner = refiner
+        self.camera = camera
+        self.tolerance_rad = float(tolerance_rad)
+        self.centroid_sigma_px = float(centroid_sigma_px)
+        self._cache_tag = cache_tag
+        self.n_min, self.n_max = int(settings.pop("n_min")), int(settings.pop("n_max"))
+        self.p_false_max = float(settings.pop("p_false_max"))
+        self.max_detections = int(settings.pop("max_detections"))
+        self.max_patterns = int(settings.pop("max_patterns"))
+        self.work_budget = int(settings.pop("work_budget"))
+        self.fov_error_deg = float(settings.pop("fov_error_deg"))
+        self.fov_range_deg = settings.pop("fov_range_deg")
+        self._fov_uncertain = bool(self.fov_error_deg) or self.fov_range_deg is not None
+        self.faithful = bool(settings.pop("faithful"))
+        self.n_bands = int(settings.pop("n_bands"))
+        self.dec_check = settings.pop("dec_check")
+        if settings:
+            raise TypeError(f"PatternSearch: unknown settings {sorted(settings)}")
+        # the search runs compiled, except with the matchers kept in numpy
+        self._compiled = not (self.faithful or self.n_bands > 1)
+
+    @property
+    def _ix(self) -> tuple:
+        """The compiled index arrays (:attr:`CatalogView.ix`); assigned here (the
+        triangles joining them), the one-call path's state is made again."""
+        return self.view.ix
+
+    @_ix.setter
+    def _ix(self, value: tuple) -> None:
+        self.view.ix = value
+
+    def settings_changed(self) -> None:
+        """Drop the one-call path's compiled state (made again on the next solve): for a
+        setting of another part (the verifier's or refiner's ``compiled``) changed."""
+        self._lean_changed(lambda _self: None)
+
+    def focal_scales(self) -> list[float]:
+        """Focal-length multipliers covering the FOV uncertainty (1.0 first):
+        :func:`focal_scales` of this search's camera and settings."""
+        return focal_scales(self.camera, self.fov_error_deg, self.fov_range_deg)
 
     def _trial_budget(self, n_scales: int, per_guess: int | None = None) -> int:
         """(pattern, focal guess) trials a frame may take: ``max_patterns`` (or
@@ -99,107 +228,55 @@ class LostInSpace:
         a known camera's."""
         return (per_guess or self.max_patterns) * min(n_scales, MAX_BUDGET_SCALES)
 
-    def _focal_scales(self) -> list[float]:
-        """Focal-length multipliers covering the FOV uncertainty (1.0 first)."""
-        if not self._fov_uncertain:
-            return [1.0]
-        half = np.radians(self.camera.fov_x_deg) / 2
-        if self.fov_range_deg is not None:
-            # focal scale k turns the nominal FOV into 2·atan(tan(half) / k)
-            fov_lo, fov_hi = np.radians(self.fov_range_deg) / 2
-            lo = np.tan(half) / np.tan(fov_hi)
-            hi = np.tan(half) / np.tan(fov_lo)
-        else:
-            lo = np.tan(half) / np.tan(half + np.radians(self.fov_error_deg) / 2)
-            hi = np.tan(half) / np.tan(max(half - np.radians(self.fov_error_deg) / 2, 1e-6))
-        n = max(3, int(np.ceil(np.log(hi / lo) / np.log1p(self._scale_step))) + 1)
-        grid = np.exp(np.linspace(np.log(lo), np.log(hi), n))
-        order = np.argsort(np.abs(np.log(grid)))
-        rest = [float(g) for g in grid[order] if abs(np.log(g)) > 1e-12]
-        return [1.0, *rest] if lo <= 1.0 <= hi else rest
-
-    _scale_step = 0.01  # 1 % focal steps; windows widen by half a step × distance
-
     @property
     def _rel_tol(self) -> float:
         """The pair windows' widening per radian of pair distance: half a focal step when
         the focal length is searched, else none."""
-        return 0.5 * self._scale_step if self._fov_uncertain else 0.0
+        return 0.5 * SCALE_STEP if self._fov_uncertain else 0.0
+
+    def warm_up(self, pxy: NDArray, idx: NDArray, triangles: bool = True) -> bool:
+        """``Solver.warm_up``'s search part, on a synthetic frame (``pxy``: the catalogue's
+        projection, ``idx``: its rows): the search bounded (the kernels compile or load on
+        their first call whatever it finds, and a camera whose match windows span degrees
+        (32×24 px over 44°: 1.4° a pixel) spent ~110 s solving this frame in the fuzz's
+        CLI cases), the triangles (``triangles``), every detection count's patterns, the
+        one-call path's state and kernel, and the weak path (:meth:`warm_up_weak`).
+        Returns whether the frame was solved."""
+        if triangles:
+            self._with_triangles()  # built or loaded now, not in a frame's budget
+        xy8 = np.ascontiguousarray(pxy[:8])
+        sol, _ = self.solve_at(xy8, [self.camera], _WARM_UP_PATTERNS, _WARM_UP_WORK)
+        solved = self.refiner.refine(sol, xy8).ok
+        for n_det in range(3, self.max_detections + 1):  # every count's patterns (~0.1 s)
+            self._pattern_list(n_det, False)  # Renken's, searched first
+            self._pattern_list(n_det, True)
+        # the one-call path's state and kernel (solve on an array), on input its check
+        # refuses: compiled or loaded whatever the camera, no search run
+        self.solve_lean(np.full((3, 2), np.nan), 0.0)
+        self.warm_up_weak(pxy, idx)
+        return solved
+
+    def warm_up_weak(self, pxy: NDArray, idx: NDArray) -> None:
+        """The weak candidates' quick check, and its compiled form (frames of noise), on a
+        synthetic frame (as :meth:`warm_up`)."""
+        b_all = self.camera.pixels_to_vectors(pxy[:3])
+        table = PairWindows.of(b_all, self.tolerance_rad, 0.0)
+        self.verifier.quick(b_all, table, np.arange(3), idx[None, :3], self.camera, 1)
+        if self._frame_path([self.camera]):
+            self._weak_verified(np.ascontiguousarray(pxy[:3]), self.camera,
+                                [(1.0, np.arange(3), idx[:3], "", 0, 1)])
 
     def _patterns(self, n_det: int) -> Iterator[tuple[tuple[int, ...], str]]:
-        """Patterns in a fixed order: Renken's main pattern, his Not-Modus ((n−1)- and
-        (n−2)-star sub-patterns, then fainter detections swapped in), then — our
-        extension for frames with several false objects among the brightest — every
-        3-star combination of the brightest ``max_detections``, the most probably clean
-        first given the failures so far (:func:`starid.identify.search_order.combination_order`),
-        then every 4-star one by its faintest member. Verification against all
-        other detections is what makes a 3-star pattern trustworthy."""
-        seen: set[tuple[int, ...]] = set()
-        yield from self._renken_patterns(n_det, seen)
-
-        # 3-star patterns first: among false objects they are more often clean; most
-        # probably clean first, given that every pattern so far held a false object
-        if self.n_min <= 3:
-            for pat in combination_order(n_det, list(seen)):
-                if self._fresh(pat, seen):
-                    yield pat, f"combination {list(pat)}"
-        for last in range(3, n_det):
-            for head in itertools.combinations(range(last), 3):
-                pat = (*head, last)
-                if self._fresh(pat, seen):
-                    yield pat, f"combination {list(pat)}"
-
-    def _renken_patterns(self, n_det: int, seen: set[tuple[int, ...]],
-                         ) -> Iterator[tuple[tuple[int, ...], str]]:
-        """The first part of :meth:`_patterns`: Renken's main pattern and Not-Modus
-        (adding each to ``seen``)."""
-        n = min(self.n_max, n_det)
-        base = tuple(range(n))
-
-        if self._fresh(base, seen):
-            yield base, f"n={n}"
-        for k in (n - 1, n - 2):
-            # drop the faintest stars first: false objects are more often faint
-            for keep in sorted(itertools.combinations(base, k), key=lambda c: sorted(
-                    set(base) - set(c), reverse=True), reverse=True):
-                if self._fresh(keep, seen):
-                    yield keep, f"not-modus {k}-of-{n} {list(keep)}"
-        for extra in range(n, min(n_det, 2 * n)):  # the next n fainter detections
-            for out in reversed(base):
-                pat = tuple(sorted((set(base) - {out}) | {extra}))
-                if self._fresh(pat, seen):
-                    yield pat, f"not-modus swap {extra} for {out}"
-
-    def _fresh(self, p: tuple[int, ...], seen: set[tuple[int, ...]]) -> bool:
-        """Whether ``p`` is a pattern not yet tried, of at least ``n_min`` (and 3) stars;
-        notes it in ``seen``."""
-        if p in seen or len(p) < max(self.n_min, 3):
-            return False
-        seen.add(p)
-        return True
+        """Every pattern in the order tried (:func:`search_order.patterns`)."""
+        return search_order.patterns(n_det, self.n_min, self.n_max)
 
     def _pattern_list(self, n_det: int, full: bool,
                       ) -> tuple[NDArray[np.int64], NDArray[np.int64], list[str]]:
-        """Patterns of :meth:`_patterns` for :func:`kernels.search` — Renken's
-        (:meth:`_renken_patterns`) or, with ``full``, all up to the budget
-        (``max_patterns`` + 1) — as detections (P, 8), their counts (P,) and the paths.
+        """The patterns for :func:`kernels.search` (:func:`search_order.pattern_arrays`)."""
+        return search_order.pattern_arrays(n_det, full, self.max_patterns, self.n_max,
+                                           self.n_min)
 
-        The order is a function of the detection count alone (the search reaches a
-        pattern only after every earlier one failed), so each list is computed once per
-        count; the combinations' order (a few ms) only when a frame first gets there."""
-        key = (n_det, full, self.max_patterns, self.n_max, self.n_min)
-        if key not in self._pattern_lists:
-            it = self._patterns(n_det) if full else self._renken_patterns(n_det, set())
-            pats = list(itertools.islice(it, self.max_patterns + 1))
-            arr = np.zeros((len(pats), 8), dtype=np.int64)
-            for r, (p, _) in enumerate(pats):
-                arr[r, :len(p)] = p
-            self._pattern_lists[key] = (arr, np.array([len(p) for p, _ in pats],
-                                                      dtype=np.int64),
-                                        [path for _, path in pats])
-        return self._pattern_lists[key]
-
-    def _solve_at(self, xy: NDArray, cams: list[Camera],
+    def solve_at(self, xy: NDArray, cams: list[Camera],
                   per_guess: int | None = None,
                   work_budget: int | None = None) -> tuple[Solution, int]:
         """Try patterns in order; each pattern at every focal-length guess (so the right
@@ -223,15 +300,15 @@ class LostInSpace:
             cam = cams[ci]
             cands = [c for a, q in zip(assignments, quicks, strict=True)
                      if q is not None and q[0] <= self.p_false_max
-                     and (c := self._verify(xy, cam, sel, a, q, b_cams[ci])) is not None]
+                     and (c := self.verifier.verify(xy, cam, sel, a, q, b_cams[ci])) is not None]
             accepted = distinct_candidates([c for c in cands if c.p_false <= self.p_false_max],
                                  3 * self.tolerance_rad)
             if len(accepted) == 1:
-                return self._solution(accepted[0], len(assignments), path, cands), run.tried
+                return accepted_solution(accepted[0], len(assignments), path, cands), run.tried
             if len(accepted) > 1:
                 best, note = resolve_by_evidence(accepted)
                 if best is not None:
-                    sol = self._solution(best, len(assignments), path, cands)
+                    sol = accepted_solution(best, len(assignments), path, cands)
                     return replace(sol, note=note), run.tried
                 return Solution(
                     False, f"ambiguous: {len(accepted)} distinct attitudes verified",
@@ -260,9 +337,9 @@ class LostInSpace:
                               for b in b_cams]
                 shown = []
                 for _, sel, a, _, ci, trial in best:
-                    q = self._quick(b_cams[ci], tables[ci], sel, a[None], cams[ci],
+                    q = self.verifier.quick(b_cams[ci], tables[ci], sel, a[None], cams[ci],
                                     trial)[0]
-                    if (c := self._verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
+                    if (c := self.verifier.verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
                         shown.append(c)
             reason = (f"ambiguous: weak evidence, the best candidate has p_false "
                       f"{best[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
@@ -284,13 +361,13 @@ class LostInSpace:
         M, off = cam._ideal_pinhole[:2]
         ok, n, det, cat, q, cov, res, p = frame_kernels.verify_weak(
             self._ix, np.ascontiguousarray(xy, dtype=np.float64), M, off, self.tolerance_rad,
-            rows, self._match_radius_px(), self.centroid_sigma_px, cam.pixel_scale_rad)
-        return [_candidate(det[k, :n[k]].tolist(), self.ids[cat[k, :n[k]]].tolist(), q[k],
+            rows, self.verifier.match_radius_px(), self.centroid_sigma_px, cam.pixel_scale_rad)
+        return [_candidate(det[k, :n[k]].tolist(), self.view.ids[cat[k, :n[k]]].tolist(), q[k],
                            cov[k], res[k, :n[k]], float(p[k]), len(best[k][1]), cam,
-                           self._project)
+                           self.view.project)
                 for k in range(len(best)) if ok[k]]
 
-    def _solve_lean(self, arr: NDArray[np.float64], t0: float) -> Solution | None:
+    def solve_lean(self, arr: NDArray[np.float64], t0: float) -> tuple[Solution, bool] | None:
         """``solve(arr)`` without a prior, for the common case — detections an (N, 2)
         C-contiguous float64 array, the n-star method, a known ideal pinhole refitted in
         the kernel — as one compiled call (:func:`starid.identify.frame_kernels.solve_lean`, the
@@ -298,7 +375,10 @@ class LostInSpace:
         (about a third of a clean frame's time was Python around the kernel): the same
         solution, or None (the general path takes over) for input the check refuses or
         any other set-up. A frame whose call ends otherwise than in one refitted attitude
-        continues in :meth:`_frame_solution` from that call's result."""
+        continues in :meth:`_frame_solution` from that call's result. Returns the solution
+        and whether it is final: False when it is a fix that explains too few of the
+        detections the search used, whose rest the solver searches
+        (``Solver._rest_checked``)."""
         lean = self.__dict__.get("_lean")
         if lean is None:
             changes = self.__dict__.get("_lean_changes", 0)
@@ -328,8 +408,8 @@ class LostInSpace:
             if outcome == frame_kernels.NO_ROOM:
                 raise RuntimeError(
                     "the lean solve asked for larger arrays after it was given them (a "
-                    "bug: its work lengths disagree with LostInSpace._scratch); set "
-                    "solver._frame_kernel = False to solve this frame the general way")
+                    "bug: its work lengths disagree with PatternSearch._scratch); set "
+                    "solver.search._frame_kernel = False to solve this frame the general way")
         except BaseException:
             self._drop_scratch()
             raise
@@ -341,12 +421,12 @@ class LostInSpace:
         n = min(n_all, self.max_detections)
         cam = self.camera
         if outcome == frame_kernels.ACCEPTED and every[5] == 1:  # one attitude, refitted
-            sol = _accepted(every, floats, cam, self._project, paths[n], n, t0)
+            sol = _accepted(every, floats, cam, self.view.project, paths[n], n, t0)
             # the pairs of the search's detections (the refit's pairs are in detection
             # order, frame_kernels._by_detection): what _rest_checked decides, without it
             used = every[7] if n_all == n else bisect.bisect_left(sol.matches, (n,))
             if used >= rest_below[n]:
-                return sol
+                return sol, True
         else:
             # the walk continues from the call's state (copied: the array is the thread's)
             first = (tuple(a.copy() for a in frame_kernels.walk_parts(walk, cols)),
@@ -356,9 +436,9 @@ class LostInSpace:
             if not filled:
                 sol = replace(sol, time_s=time.perf_counter() - t0, n_detections=n,
                               patterns_tried=tried)
-        return self._rest_checked(sol, arr, arr[:n], t0)
+        return sol, False
 
-    def _rest_wanted(self, n_used: int, n: int) -> bool:
+    def rest_wanted(self, n_used: int, n: int) -> bool:
         """Whether a fix that explains ``n_used`` of the ``n`` detections the search used
         has the rest searched too (``Solver._rest_checked``): fewer than
         :data:`REST_CHECK_SHARE` of them, and enough left over for a pattern."""
@@ -366,34 +446,34 @@ class LostInSpace:
 
     def _lean_state(self) -> tuple[frame_kernels.LeanState, list[list[str]], int,
                                    Callable, list[int]] | bool:
-        """:meth:`_solve_lean`'s compiled state of this solver's settings, index and camera
+        """:meth:`solve_lean`'s compiled state of this solver's settings, index and camera
         (:func:`starid.identify.frame_kernels.lean_state`), the paths of every detection count's
         patterns (Renken's, :meth:`_pattern_list`), the length of the walk's no-match
         sets, the compiled call (:func:`starid.identify.frame_kernels.lean_call`) and, per
         detection count, the fewest pairs a fix needs to have the rest of the detections
-        left unsearched (:meth:`_rest_wanted`), or False where
-        the lean path does not apply (another method, the numpy
+        left unsearched (:meth:`rest_wanted`), or False where
+        the lean path does not apply (the numpy
         matchers, a camera that is no ideal pinhole or is fitted, a focal range). Made on
         the first call and dropped by any assignment to the solver (:meth:`__setattr__`):
         every setting a solve reads is one of its attributes."""
         cam = self.camera
-        if not (self._frame_path([cam]) and self.method == "nstar" and self._compiled_refine
-                and self._fit_terms() is None):
+        if not (self._frame_path([cam]) and self.refiner.compiled
+                and self.refiner.fit_terms() is None):
             return False
         lists = [self._pattern_list(n, False) if n >= 3 else (_NO_PATS, _NO_COUNTS, [])
                  for n in range(self.max_detections + 1)]
         start = np.cumsum([0] + [len(c) for _, c, _ in lists], dtype=np.int64)
         st = frame_kernels.lean_state(
-            self.ids, self._ix, *self._frame_camera(cam), input_bounds(cam)[2],
+            self.view.ids, self._ix, *self._frame_camera(cam), input_bounds(cam)[2],
             self.tolerance_rad, self.max_detections,
             np.ascontiguousarray(np.concatenate([p for p, _, _ in lists])),
             np.concatenate([c for _, c, _ in lists]), start, self._trial_budget(1),
             self.work_budget, self.max_patterns + 2, 2 * len(self._ix[0]),
-            self._match_radius_px(), self.centroid_sigma_px, self.p_false_max,
+            self.verifier.match_radius_px(), self.centroid_sigma_px, self.p_false_max,
             3 * self.tolerance_rad, _REFIT_CONSTANTS)
-        # _rest_wanted(used, n) as "used < rest_below[n]": the fewest pairs it is False
+        # rest_wanted(used, n) as "used < rest_below[n]": the fewest pairs it is False
         # for (it is for every count past that one)
-        rest_below = [next(u for u in range(n + 2) if not self._rest_wanted(u, n))
+        rest_below = [next(u for u in range(n + 2) if not self.rest_wanted(u, n))
                       for n in range(self.max_detections + 1)]
         return (st, [paths for _, _, paths in lists], self.max_patterns + 2,
                 frame_kernels.lean_call(st), rest_below)
@@ -402,7 +482,7 @@ class LostInSpace:
         # a setting, the index (the triangles joining it) or the camera changed: the lean
         # path's state is made again on its next call (the solve's own caches keep it).
         # The count goes up first and the state goes last, so a state another thread is
-        # making meanwhile from the old value is not kept (_solve_lean compares counts)
+        # making meanwhile from the old value is not kept (solve_lean compares counts)
         if name in _LEAN_KEEPS:
             object.__setattr__(self, name, value)
         else:
@@ -425,16 +505,16 @@ class LostInSpace:
         state.pop("_lean", None)
         return state
 
-    def _solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
+    def solve_refined(self, xy: NDArray, cams: list[Camera], xy_all: NDArray,
                        t0: float) -> Solution:
-        """:meth:`_solve_at`, then the accepted fix refitted on every detection ``xy_all``
-        (``Solver._refine``; those past ``xy`` outside the frame left out), with the solve's
+        """:meth:`solve_at`, then the accepted fix refitted on every detection ``xy_all``
+        (``Refiner.refine``; those past ``xy`` outside the frame left out), with the solve's
         time since ``t0``, detections and trials filled in: for a known ideal pinhole in one
         compiled call (:meth:`_solve_frame`)."""
         if self._frame_path(cams):
             return self._solve_frame(xy, cams[0], xy_all, t0=t0)[0]
-        sol, tried = self._solve_at(xy, cams)
-        return replace(self._refine(sol, self._outside_as_nan(xy_all, len(xy))),
+        sol, tried = self.solve_at(xy, cams)
+        return replace(self.refiner.refine(sol, outside_as_nan(self.camera, xy_all, len(xy))),
                        time_s=time.perf_counter() - t0,
                        n_detections=len(xy), patterns_tried=tried)
 
@@ -470,7 +550,7 @@ class LostInSpace:
             return
         with _TRIANGLES_LOCK:
             if not self._triangles_done:
-                table = triangles_for(self.index, self.tolerance_rad, self._cache_tag)
+                table = triangles_for(self.view.index, self.tolerance_rad, self._cache_tag)
                 if table is not None:
                     self._ix = kernels.with_triangles(self._ix, table)
                 self._triangles_done = True
@@ -496,18 +576,18 @@ class LostInSpace:
         """Whether a search at ``cams`` runs as one compiled call
         (:func:`starid.identify.frame_kernels.solve_frame`): the compiled search and
         verification, one focal guess, an ideal pinhole."""
-        return (self._frame_kernel and self._compiled and self._compiled_verify
+        return (self._frame_kernel and self._compiled and self.verifier.compiled
                 and not self._fov_uncertain and len(cams) == 1
                 and cams[0]._ideal_pinhole is not None)
 
     def _solve_frame(self, xy: NDArray, cam: Camera, xy_all: NDArray | None,
                      per_guess: int | None = None, work_budget: int | None = None,
                      t0: float | None = None) -> tuple[Solution, int]:
-        """:meth:`_solve_at` (and, given ``xy_all``, ``Solver._refine``) as one call of
+        """:meth:`solve_at` (and, given ``xy_all``, ``Refiner.refine``) as one call of
         :func:`starid.identify.frame_kernels.solve_frame`: the same trials, candidates, decisions
         and refit; Python builds the :class:`Solution` (and weighs several accepted
-        attitudes, or shows the weak ones, as :meth:`_solve_at` does) — with ``t0``, with
-        the solve's time, detections and trials filled in (as ``_solve_refined``)."""
+        attitudes, or shows the weak ones, as :meth:`solve_at` does) — with ``t0``, with
+        the solve's time, detections and trials filled in (as ``solve_refined``)."""
         sol, tried, filled = self._frame_solution(xy, cam, xy_all, per_guess, work_budget,
                                                   t0)
         if t0 is not None and not filled:
@@ -524,9 +604,9 @@ class LostInSpace:
         state, no_match, n_no_match = walk
         try:
             return frame_kernels.solve_frame_packed(
-                self.ids, self._ix, xy, refit_xy, *self._frame_camera(cam),
+                self.view.ids, self._ix, xy, refit_xy, *self._frame_camera(cam),
                 self.tolerance_rad, state, pats, plen, budget, no_match, n_no_match,
-                work, self._scratch(), self._match_radius_px(), self.centroid_sigma_px,
+                work, self._scratch(), self.verifier.match_radius_px(), self.centroid_sigma_px,
                 self.p_false_max, 3 * self.tolerance_rad, refine, _REFIT_CONSTANTS)
         except BaseException:
             self._drop_scratch()
@@ -545,18 +625,18 @@ class LostInSpace:
         time, detections and trials filled in — the common outcome, one attitude refitted
         in the kernel, has when ``t0`` is given). ``first``: the walk and the result of
         the first call, already made, read by :func:`starid.identify.frame_kernels.unpack`
-        (:meth:`_solve_lean`)."""
+        (:meth:`solve_lean`)."""
         full = False
         pats, plen, paths = self._pattern_list(len(xy), full)
         walk = self._fresh_walk() if first is None else first[0]
         state = walk[0]
         budget = self._trial_budget(1, per_guess)
         work = self.work_budget if work_budget is None else min(work_budget, self.work_budget)
-        refine = (xy_all is not None and self._compiled_refine
-                  and self._fit_terms() is None)
+        refine = (xy_all is not None and self.refiner.compiled
+                  and self.refiner.fit_terms() is None)
         xy = np.ascontiguousarray(xy, dtype=np.float64)
         # the detections the kernel refits on (unused without a refit); xy_all itself stays
-        # what the Python refit gets (None: none, as _solve_at returns the verified fit)
+        # what the Python refit gets (None: none, as solve_at returns the verified fit)
         refit_xy = np.ascontiguousarray(xy_all, dtype=np.float64) if refine else xy
         weak_rows = []
         while True:
@@ -583,7 +663,7 @@ class LostInSpace:
             elif note == kernels.NOTE_PATTERNS:
                 run.budget_note = f"{a} pattern trials (the budget)"
             return self._unsolved(xy, [cam], None, None, run), tried, False
-        found = [_candidate(*c, len(sel), cam, self._project) for c in cands]
+        found = [_candidate(*c, len(sel), cam, self.view.project) for c in cands]
         path = paths[pos]
         accepted = [found[i] for i in order]
         if outcome == frame_kernels.SEVERAL:
@@ -592,8 +672,8 @@ class LostInSpace:
                 return Solution(False, f"ambiguous: {n_acc} distinct attitudes verified",
                                 matching_counter=counter, path=path,
                                 candidates=accepted), tried, False
-            sol = replace(self._solution(best, counter, path, found), note=why)
-            return ((self._refine(sol, self._outside_as_nan(xy_all, len(xy)))
+            sol = replace(accepted_solution(best, counter, path, found), note=why)
+            return ((self.refiner.refine(sol, outside_as_nan(self.camera, xy_all, len(xy)))
                      if xy_all is not None else sol), tried, False)
         best = accepted[0]
         status = refit[0]
@@ -601,16 +681,38 @@ class LostInSpace:
             done = () if t0 is None else (time.perf_counter() - t0, len(xy), tried)
             return (_refitted(refit, counter, best.p_false, path, found, cam, *done), tried,
                     t0 is not None)
-        sol = self._solution(best, counter, path, found)
+        sol = accepted_solution(best, counter, path, found)
         if xy_all is not None and (status == -1 or not refine):
             # a cone the refit left, a degenerate fit, or a fitted camera: in Python
-            sol = self._refine(sol, self._outside_as_nan(xy_all, len(xy)))
+            sol = self.refiner.refine(sol, outside_as_nan(self.camera, xy_all, len(xy)))
         return sol, tried, False
+
+    def _match(self, pattern: Pattern, work_budget: int | None = None) -> NDArray[np.int64]:
+        """Every catalogue assignment of ``pattern`` (:mod:`starid.identify.nstar`): through
+        the pattern index, or Renken's faithful loops, or per declination band."""
+        work = self.work_budget if work_budget is None else work_budget
+        if self.faithful:
+            return match_faithful(self.view.vectors, pattern, self.dec_check,
+                                  self._band_masks(pattern))
+        if self.n_bands > 1:
+            parts = [match_indexed(self.view.index, pattern, work, m)
+                     for m in self._band_masks(pattern)]
+            allm = np.concatenate(parts)
+            return np.unique(allm, axis=0) if len(allm) else allm
+        return match_indexed(self.view.index, pattern, work)
+
+    def _band_masks(self, pattern: Pattern) -> list[NDArray[np.bool_]] | None:
+        if self.n_bands <= 1:
+            return None
+        dec = np.arcsin(np.clip(self.view.vectors[:, 2], -1, 1))
+        edges = np.arcsin(np.linspace(1.0, -1.0, self.n_bands + 1))
+        o = pattern.delta_max_rad
+        return [(dec <= hi + o) & (dec >= lo - o) for hi, lo in itertools.pairwise(edges)]
 
     def _trials_compiled(self, xy: NDArray, cams: list[Camera], b_cams: list[NDArray],
                          tables: list[PairWindows], run: Search,
                          budget: int, work: int) -> Iterator[tuple]:
-        """The search of :meth:`_solve_at` in compiled code (:func:`kernels.search`):
+        """The search of :meth:`solve_at` in compiled code (:func:`kernels.search`):
         yields (guess, sel, assignments, quick checks, path) of every trial with a
         candidate whose quick p_false passes, for :meth:`_verify`; ``run`` keeps the
         counts, the weak candidates and the budget notes."""
@@ -621,7 +723,7 @@ class LostInSpace:
         no_match = np.zeros((n_cams, self.max_patterns + 2), dtype=np.int64)
         n_no_match = np.zeros(n_cams, dtype=np.int64)
         pix = np.array([cam.pixel_scale_rad for cam in cams])
-        radius = self._match_radius_px() * pix
+        radius = self.verifier.match_radius_px() * pix
         floor = np.sqrt(2.0) * self.centroid_sigma_px * pix
         b_stack = b_cams[0][None] if n_cams == 1 else np.stack(b_cams)
         store = kernels.triangle_store()
@@ -686,7 +788,7 @@ class LostInSpace:
                 if len(assignments) == 0:
                     no_match[ci].append(mask)
                     continue
-                quicks = self._quick(b_all, tables[ci], sel, assignments, cam, run.tried)
+                quicks = self.verifier.quick(b_all, tables[ci], sel, assignments, cam, run.tried)
                 strong = False
                 for a, q in zip(assignments, quicks, strict=True):
                     if q is not None and q[0] <= self.p_false_max:

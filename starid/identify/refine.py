@@ -1,7 +1,7 @@
 """After identification: the frame's own evidence sets the final fit.
 
 An accepted lost-in-space candidate was verified with the configured centroid noise and
-camera. :class:`Refinement` then lets the frame speak (issue 14, items 2 and 3):
+camera. :class:`Refiner` then lets the frame speak (issue 14, items 2 and 3):
 
 1. the centroid noise is estimated a posteriori from the fit residuals — corrected for
    the degrees of freedom the fit used and for the match radius that truncated them
@@ -33,18 +33,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 from adfusion.starid.camera.calibrate import fit_camera_model
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.identify import kernels
 from adfusion.starid.identify.solution import Solution
+from adfusion.starid.identify.verify import match_radius_px
 from numpy.typing import NDArray
 
 from adfusion.maths import rotations as rot
 from adfusion.maths.attitude import wahba_unit
 
-__all__ = ["Refinement", "noise_from_residuals"]
+if TYPE_CHECKING:
+    from adfusion.starid.identify.catalog_view import CatalogView
+
+__all__ = ["Refiner", "noise_from_residuals"]
 
 # beyond this many robust σ a pair is not the star (2-D Gaussian: 0.2 % of true pairs)
 _REJECT_SIGMA = 3.5
@@ -82,36 +87,62 @@ def noise_from_residuals(res_px: NDArray, radius_px: float, n_params: int) -> fl
     return math.sqrt(s2)
 
 
-class Refinement:
-    """The final-fit stage of :class:`starid.Solver` (a mixin: it uses the solver's
-    catalogue, KD-tree and settings).
+class Refiner:
+    """The final-fit stage of :class:`starid.Solver`: an accepted solution refitted on
+    every detection (the steps of the module docstring).
 
-    >>> from adfusion.starid.solver import Solver
-    >>> issubclass(Solver, Refinement)
-    True
+    Args:
+        view: the catalogue (:class:`~adfusion.starid.identify.catalog_view.CatalogView`:
+            vectors, ids, projection and cached cone).
+        camera: the solver's camera (a solution without its own is refitted through it).
+        centroid_sigma_px: the configured 1-σ centroid error.
+        fit_camera: the :class:`~adfusion.starid.config.SolverConfig` option.
+        fov_uncertain: whether the focal length is uncertain (``fit_camera="auto"`` fits
+            then).
+
+    ``compiled`` (True): a fixed undistorted pinhole is refitted by
+    :func:`starid.identify.kernels.refine_pinhole`; False: in Python.
+
+    >>> from adfusion import starid
+    >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
+    ...                   starid.Camera.pinhole(1024, 768, 15.0))
+    >>> isinstance(s.refiner, Refiner), s.refiner.fit_terms()
+    (True, None)
     """
 
-    def _fit_terms(self):
+    def __init__(self, view: CatalogView, camera: Camera, centroid_sigma_px: float,
+                 fit_camera: str, fov_uncertain: bool) -> None:
+        self.view = view
+        self.camera = camera
+        self.centroid_sigma_px = float(centroid_sigma_px)
+        self.fit_camera = fit_camera
+        self.fov_uncertain = bool(fov_uncertain)
+        self.compiled = True
+
+    def match_radius_px(self) -> float:
+        return match_radius_px(self.centroid_sigma_px)
+
+    def fit_terms(self):
         mode = self.fit_camera
-        if mode == "none" or (mode == "auto" and not self._fov_uncertain):
+        if mode == "none" or (mode == "auto" and not self.fov_uncertain):
             return None
         return ("focal",) if mode == "focal" else "auto"
 
-    def _refine(self, sol: Solution, xy_all: NDArray) -> Solution:
+    def refine(self, sol: Solution, xy_all: NDArray) -> Solution:
         """:class:`Solution` ``sol`` (accepted) refitted on all detections ``xy_all``."""
         if not sol.ok or sol.q_cam_icrs is None or len(sol.matches) < 3:
             return sol
         cam0: Camera = sol.camera or self.camera
-        terms = self._fit_terms()
+        terms = self.fit_terms()
         if (terms is None and cam0._ideal_pinhole is not None
-                and getattr(self, "_compiled_refine", False)):
-            out = self._refine_pinhole(sol, xy_all, cam0)
+                and self.compiled):
+            out = self.refine_pinhole(sol, xy_all, cam0)
             if out is not None:
                 return out
         det = np.array([d for d, _ in sol.matches], dtype=np.int64)
-        cat = self._catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
+        cat = self.view.catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
         original = set(det.tolist())
-        r_min = self._match_radius_px()
+        r_min = self.match_radius_px()
         sigma0 = self.centroid_sigma_px
         ok_xy = np.isfinite(xy_all).all(axis=1)
         cam, q = cam0, sol.q_cam_icrs
@@ -130,7 +161,7 @@ class Refinement:
                 quick = terms if terms != "auto" else (("focal", "k1") if len(det) >= 8
                                                        else ("focal",))
                 try:
-                    fit = fit_camera_model([(xy_all[det], self.vectors[cat])], cam0,
+                    fit = fit_camera_model([(xy_all[det], self.view.vectors[cat])], cam0,
                                            quick, q_cam_icrs=[sol.q_cam_icrs])
                 except ValueError:
                     return sol
@@ -140,9 +171,9 @@ class Refinement:
                 n_par = 3 + n_cam
             else:
                 b = cam.pixels_to_vectors(xy_all[det])
-                w = wahba_unit(b, self.vectors[cat], sigma0 * pix)
+                w = wahba_unit(b, self.view.vectors[cat], sigma0 * pix)
                 q = w.q_cam_icrs
-                pred = cam.vectors_to_pixels(self.vectors[cat] @ rot.to_matrix(q).T)
+                pred = cam.vectors_to_pixels(self.view.vectors[cat] @ rot.to_matrix(q).T)
                 res_px = pred - xy_all[det]
                 n_par = 3 + (n_cam if terms is not None else 0)
             sigma_px = noise_from_residuals(res_px, trunc_px, n_par)
@@ -154,13 +185,13 @@ class Refinement:
             radius_px = (_RADIUS_MAX_FACTOR * r_min if it == 0 else
                          min(max(r_min, _RADIUS_SIGMA * sigma_px), _RADIUS_MAX_FACTOR * r_min))
             # every detection again, through this camera and attitude
-            pred_xy, pred_idx = self._predict(rot.to_matrix(q), cam, 0.0)
+            pred_xy, pred_idx = self.view.predict(rot.to_matrix(q), cam, 0.0)
             new_det, new_cat = _associate_px(xy_all, ok_xy, pred_xy, pred_idx, radius_px)
             if len(new_det) < 3:
                 return sol
             # the residuals reject pairs a robust σ puts beyond 3.5σ
             d = np.hypot(*(xy_all[new_det] - cam.vectors_to_pixels(
-                self.vectors[new_cat] @ rot.to_matrix(q).T)).T)
+                self.view.vectors[new_cat] @ rot.to_matrix(q).T)).T)
             robust = math.sqrt(float(np.median(d * d)) / (2.0 * math.log(2.0)))
             reject_px = max(_REJECT_SIGMA * robust, 0.5 * r_min)
             keep = d <= reject_px
@@ -176,7 +207,7 @@ class Refinement:
             return sol  # the refit walked away from the verified stars: keep the verified fit
         if terms == "auto" and len(det) >= 4:
             try:
-                fit = fit_camera_model([(xy_all[det], self.vectors[cat])], cam0, terms,
+                fit = fit_camera_model([(xy_all[det], self.view.vectors[cat])], cam0, terms,
                                        q_cam_icrs=[q], free_principal=False)
             except ValueError:
                 return sol
@@ -196,35 +227,35 @@ class Refinement:
         nu = dof + _PRIOR_DOF
         inflate = nu / (nu - 2.0) if nu > 4.0 else 2.0
         try:
-            w = wahba_unit(b, self.vectors[cat],
+            w = wahba_unit(b, self.view.vectors[cat],
                            math.sqrt(s2 * inflate) * cam.pixel_scale_rad)
         except ValueError:
             return sol
         order = np.argsort(det)
-        matches = [(int(a), int(self.ids[c])) for a, c in zip(det[order], cat[order],
+        matches = [(int(a), int(self.view.ids[c])) for a, c in zip(det[order], cat[order],
                                                                strict=True)]
         return replace(sol, q_cam_icrs=w.q_cam_icrs, matches=matches,
                        covariance=w.covariance, residuals_rad=w.residuals_rad[order],
                        camera=cam, sigma_px=math.sqrt(s2),
                        note="; ".join(n for n in (sol.note, note) if n))
 
-    def _refine_pinhole(self, sol: Solution, xy_all: NDArray, cam0: Camera) -> Solution | None:
-        """:meth:`_refine` compiled (:func:`starid.identify.kernels.refine_pinhole`) for a camera
+    def refine_pinhole(self, sol: Solution, xy_all: NDArray, cam0: Camera) -> Solution | None:
+        """:meth:`refine` compiled (:func:`starid.identify.kernels.refine_pinhole`) for a camera
         that is not fitted and has no distortion: the same steps and constants, the same
         pairs, the fit to ~1e-12 (a Jacobi SVD instead of LAPACK's). None when the cached
         catalogue cone does not cover an attitude of the refit (the caller runs the Python
         code then)."""
         M, off, A, c = cam0._ideal_pinhole
         det = np.array([d for d, _ in sol.matches], dtype=np.int64)
-        cat = self._catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
+        cat = self.view.catalog_index(np.array([h for _, h in sol.matches], dtype=np.int64))
         view_half = cam0._view_half_rad + 1e-3
-        idx, vec = self._cone(rot.to_matrix(sol.q_cam_icrs)[2], view_half)
-        c_axis, c_half = self._cone_cache[0], self._cone_cache[1]
+        idx, vec = self.view.cone(rot.to_matrix(sol.q_cam_icrs)[2], view_half)
+        c_axis, c_half = self.view.cone_cache[0], self.view.cone_cache[1]
         xy = np.ascontiguousarray(xy_all, dtype=np.float64)
         status, d, k, q, cov, res, sigma_px, rejected = kernels.refine_pinhole(
-            xy, np.isfinite(xy).all(axis=1), det, cat, self.vectors, M, off, A, c,
+            xy, np.isfinite(xy).all(axis=1), det, cat, self.view.vectors, M, off, A, c,
             float(cam0.width), float(cam0.height), idx, vec, c_axis, float(c_half),
-            view_half, cam0.pixel_scale_rad, float(self._match_radius_px()),
+            view_half, cam0.pixel_scale_rad, float(self.match_radius_px()),
             self.centroid_sigma_px, _REJECT_SIGMA, _RADIUS_SIGMA, _RADIUS_MAX_FACTOR,
             float(_PRIOR_DOF), _FIT_HERE, _FIT_HERE)
         if status < 0:
@@ -232,18 +263,11 @@ class Refinement:
         if status == 0:
             return sol
         order = np.argsort(d)
-        matches = list(zip(d[order].tolist(), self.ids[k[order]].tolist(), strict=True))
+        matches = list(zip(d[order].tolist(), self.view.ids[k[order]].tolist(), strict=True))
         note = f"{rejected} pair(s) rejected by the residuals" if rejected else ""
         return replace(sol, q_cam_icrs=q, matches=matches, covariance=cov,
                        residuals_rad=res[order], camera=cam0, sigma_px=float(sigma_px),
                        note="; ".join(n for n in (sol.note, note) if n))
-
-    def _catalog_index(self, ids: NDArray[np.int64]) -> NDArray[np.int64]:
-        """Catalogue row of each id."""
-        if getattr(self, "_id_order", None) is None:
-            self._id_order = np.argsort(self.ids, kind="stable")
-            self._ids_sorted = self.ids[self._id_order]
-        return self._id_order[np.searchsorted(self._ids_sorted, ids)]
 
 
 def _associate_px(xy: NDArray, ok: NDArray, pred_xy: NDArray, pred_idx: NDArray,

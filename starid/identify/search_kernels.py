@@ -147,7 +147,7 @@ def search(ix, state, pats, plen, budget, no_match, n_no_match, b_cams, toleranc
     """Walk the pattern list ``pats`` (P, 8; ``plen`` stars each) × focal guesses (the
     directions ``b_cams`` (C, N, 3), ``radius`` and ``floor`` per guess; each pattern's
     windows :func:`pattern_windows` of ``tolerance_rad`` and ``rel_tol``) as
-    ``Solver._solve_at`` does, from the trial at
+    ``PatternSearch.solve_at`` does, from the trial at
     ``state`` = [pattern, guess, tried, first matching counter (−1: none), …], and stop
     after the first trial with a candidate whose quick p_false ≤ ``p_false_max``.
 

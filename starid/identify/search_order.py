@@ -34,10 +34,11 @@ Example:
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from functools import lru_cache
 
 import numpy as np
+from numpy.typing import NDArray
 
 __all__ = ["combination_order"]
 
@@ -109,3 +110,95 @@ def _most_probably_clean(m: int, failed: tuple[tuple[int, ...], ...],
 
 def _mask(idx: Sequence[int]) -> int:
     return sum(1 << int(i) for i in idx)
+
+
+def patterns(n_det: int, n_min: int, n_max: int) -> Iterator[tuple[tuple[int, ...], str]]:
+    """Patterns (detection indices, brightest first) and their paths, in the fixed order
+    tried: Renken's main pattern, his Not-Modus ((n−1)- and (n−2)-star sub-patterns, then
+    fainter detections swapped in), then — our extension for frames with several false
+    objects among the brightest — every 3-star combination, the most probably clean first
+    given the failures so far (:func:`combination_order`), then every 4-star one by its
+    faintest member. Verification against all other detections is what makes a 3-star
+    pattern trustworthy.
+
+    Example:
+        >>> [path for _, path in itertools.islice(patterns(6, 3, 4), 3)]
+        ['n=4', 'not-modus 3-of-4 [0, 1, 2]', 'not-modus 3-of-4 [0, 1, 3]']
+    """
+    seen: set[tuple[int, ...]] = set()
+    yield from renken_patterns(n_det, n_min, n_max, seen)
+
+    # 3-star patterns first: among false objects they are more often clean; most
+    # probably clean first, given that every pattern so far held a false object
+    if n_min <= 3:
+        for pat in combination_order(n_det, list(seen)):
+            if _fresh(pat, seen, n_min):
+                yield pat, f"combination {list(pat)}"
+    for last in range(3, n_det):
+        for head in itertools.combinations(range(last), 3):
+            pat = (*head, last)
+            if _fresh(pat, seen, n_min):
+                yield pat, f"combination {list(pat)}"
+
+
+def renken_patterns(n_det: int, n_min: int, n_max: int, seen: set[tuple[int, ...]],
+                    ) -> Iterator[tuple[tuple[int, ...], str]]:
+    """The first part of :func:`patterns`: Renken's main pattern and Not-Modus (adding each
+    to ``seen``).
+
+    Example:
+        >>> [p for p, _ in renken_patterns(4, 3, 4, set())][:2]
+        [(0, 1, 2, 3), (0, 1, 2)]
+    """
+    n = min(n_max, n_det)
+    base = tuple(range(n))
+
+    if _fresh(base, seen, n_min):
+        yield base, f"n={n}"
+    for k in (n - 1, n - 2):
+        # drop the faintest stars first: false objects are more often faint
+        for keep in sorted(itertools.combinations(base, k), key=lambda c: sorted(
+                set(base) - set(c), reverse=True), reverse=True):
+            if _fresh(keep, seen, n_min):
+                yield keep, f"not-modus {k}-of-{n} {list(keep)}"
+    for extra in range(n, min(n_det, 2 * n)):  # the next n fainter detections
+        for out in reversed(base):
+            pat = tuple(sorted((set(base) - {out}) | {extra}))
+            if _fresh(pat, seen, n_min):
+                yield pat, f"not-modus swap {extra} for {out}"
+
+
+def _fresh(p: tuple[int, ...], seen: set[tuple[int, ...]], n_min: int) -> bool:
+    """Whether ``p`` is a pattern not yet tried, of at least ``n_min`` (and 3) stars; notes
+    it in ``seen``."""
+    if p in seen or len(p) < max(n_min, 3):
+        return False
+    seen.add(p)
+    return True
+
+
+@lru_cache(maxsize=256)
+def pattern_arrays(n_det: int, full: bool, max_patterns: int, n_max: int, n_min: int,
+                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], list[str]]:
+    """The patterns of :func:`patterns` for the compiled search — Renken's
+    (:func:`renken_patterns`) or, with ``full``, all up to the budget (``max_patterns`` + 1)
+    — as detections (P, 8), their counts (P,) and the paths.
+
+    The order is a function of the detection count alone (the search reaches a pattern
+    only after every earlier one failed), so each list is computed once per count and kept
+    (the combinations' order costs a few ms, paid when a frame first gets there).
+    The arrays are shared between solvers: the search only reads them.
+
+    Example:
+        >>> pats, counts, paths = pattern_arrays(5, False, 100, 4, 3)
+        >>> pats.shape[1], int(counts[0]), paths[0]
+        (8, 4, 'n=4')
+    """
+    it = (patterns(n_det, n_min, n_max) if full
+          else renken_patterns(n_det, n_min, n_max, set()))
+    pats = list(itertools.islice(it, max_patterns + 1))
+    arr = np.zeros((len(pats), 8), dtype=np.int64)
+    for r, (p, _) in enumerate(pats):
+        arr[r, :len(p)] = p
+    counts = np.array([len(p) for p, _ in pats], dtype=np.int64)
+    return arr, counts, [path for _, path in pats]

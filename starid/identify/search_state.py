@@ -73,7 +73,7 @@ class PairWindows:
 
 @dataclass
 class Search:
-    """What a solve's search has counted so far (see :meth:`Solver._solve_at`)."""
+    """What a solve's search has counted so far (see :meth:`PatternSearch.solve_at`)."""
 
     tried: int = 0  # (pattern, focal guess) trials
     first_counter: int | None = None  # matching_counter of the first pattern matched

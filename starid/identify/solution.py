@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from adfusion.maths import rotations as rot
 
-__all__ = ["Candidate", "Prior", "Solution"]
+__all__ = ["Candidate", "Prior", "Solution", "accepted_solution"]
 
 
 def made(cls: type, values: dict):
@@ -187,3 +187,15 @@ class Solution:
         if self.residuals_rad is None or len(self.residuals_rad) == 0:
             return None
         return float(np.degrees(np.sqrt(np.mean(self.residuals_rad**2))) * 3600)
+
+
+def accepted_solution(c: Candidate, counter: int, path: str,
+                      cands: list[Candidate]) -> Solution:
+    """The ``ok`` :class:`Solution` of an accepted candidate ``c``: its attitude, matches,
+    covariance, p_false, residuals and camera, with the search's ``counter`` (Renken's
+    matching counter), ``path`` and every candidate verified (``cands``)."""
+    return Solution(
+        True, "", q_cam_icrs=c.q_cam_icrs, matches=c.matches, matching_counter=counter,
+        covariance=c.covariance, p_false=c.p_false, path=path, candidates=cands,
+        residuals_rad=c.residuals_rad, camera=c.camera,
+    )

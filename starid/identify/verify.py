@@ -41,14 +41,16 @@ from adfusion.maths import rotations as rot
 from adfusion.maths.attitude import wahba_unit
 
 if TYPE_CHECKING:
-    from adfusion.starid.identify.lost_in_space import PairWindows
+    from adfusion.starid.identify.catalog_view import CatalogView
+    from adfusion.starid.identify.search_state import PairWindows
 
 __all__ = [
-    "Verification",
+    "Verifier",
     "binomial_tail",
     "distinct_candidates",
     "expected_chance_patterns",
     "keeps_pattern",
+    "match_radius_px",
     "one_to_one",
     "quick_tuples",
     "rotation_from_pairs",
@@ -127,37 +129,62 @@ def _crossing_angle(d01: float, d0m: float, d1m: float) -> float:
 # --- candidate verification (the solver's, for every search path) -----------------------
 
 
-class Verification:
+def match_radius_px(centroid_sigma_px: float) -> float:
+    """The radius (px) within which a detection matches a projected star: 3·√2·σ, at
+    least 1.5 px."""
+    return max(_3_SQRT2 * centroid_sigma_px, 1.5)
+
+
+class Verifier:
     """The :class:`starid.Solver`'s verification of candidate identifications: the quick
     check of every assignment of a pattern (compiled), the full refit of the ones that pass
-    and their false-match probability. A mixin: it uses the solver's catalogue
-    (``vectors``, ``ids``, ``index``, ``_tree``) and settings.
+    and their false-match probability.
 
-    >>> from adfusion.starid.solver import Solver
-    >>> issubclass(Solver, Verification)
-    True
+    Args:
+        view: the catalogue (:class:`~adfusion.starid.identify.catalog_view.CatalogView`:
+            vectors, ids, KD-tree, index and its compiled arrays, projection).
+        centroid_sigma_px: 1-σ centroid error (the match radius and the fit's weights).
+        max_sep_rad: the pattern index's radius (the local star density's area).
+        fov_uncertain: whether the focal length is refitted with each candidate.
+
+    ``compiled`` (True): a known camera's candidates are verified by
+    :func:`starid.identify.kernels.verify_candidate`; False: in Python.
+
+    >>> from adfusion import starid
+    >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=4.0),
+    ...                   starid.Camera.pinhole(1024, 768, 15.0))
+    >>> isinstance(s.verifier, Verifier), s.verifier.match_radius_px()
+    (True, 2.121320343559643)
     """
 
-    def _match_radius_px(self) -> float:
-        return max(_3_SQRT2 * self.centroid_sigma_px, 1.5)
+    def __init__(self, view: CatalogView, centroid_sigma_px: float, max_sep_rad: float,
+                 fov_uncertain: bool) -> None:
+        self.view = view
+        self.centroid_sigma_px = float(centroid_sigma_px)
+        self.max_sep_rad = float(max_sep_rad)
+        self.fov_uncertain = bool(fov_uncertain)
+        self.compiled = True
 
-    def _p_hit(self, anchor: int, radius_rad: float) -> float:
+    def match_radius_px(self) -> float:
+        return match_radius_px(self.centroid_sigma_px)
+
+    def p_hit(self, anchor: int, radius_rad: float) -> float:
         """Chance that a random detection falls within the match radius of a catalogue
         star: local density (neighbours of the anchor star within the index radius), at
         least the sky mean, times a safety factor."""
-        cnt = self.index.nbr_ptr[anchor + 1] - self.index.nbr_ptr[anchor]
+        cnt = self.view.index.nbr_ptr[anchor + 1] - self.view.index.nbr_ptr[anchor]
         area = 2 * np.pi * (1 - np.cos(self.max_sep_rad))
-        rho = max(cnt / area, len(self.vectors) / (4 * np.pi)) * DENSITY_SAFETY
+        rho = max(cnt / area, len(self.view.vectors) / (4 * np.pi)) * DENSITY_SAFETY
         return min(1.0, rho * np.pi * radius_rad**2)
 
-    def _associate_icrs(self, b_all: NDArray, R: NDArray,
+    def associate_icrs(self, b_all: NDArray, R: NDArray,
                         radius_rad: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Detections ↔ catalogue stars within a radius, at attitude R (cam ← icrs): each
         detection's nearest star, one-to-one (a star claimed twice goes to the closer)."""
-        d, j = self._tree.query(b_all @ R, distance_upper_bound=2 * np.sin(radius_rad / 2))
+        d, j = self.view.tree.query(b_all @ R, distance_upper_bound=2 * np.sin(radius_rad / 2))
         return one_to_one(d, j)
 
-    def _quick(self, b_all: NDArray, table: PairWindows | None, sel: NDArray,
+    def quick(self, b_all: NDArray, table: PairWindows | None, sel: NDArray,
                assigns: NDArray, cam: Camera, trials: int, chance: tuple | None = None,
                ) -> list[tuple[float, NDArray, float, NDArray, NDArray] | None]:
         """Cheap verification of every assignment (K, n) of one pattern
@@ -179,13 +206,13 @@ class Verification:
         pix = cam.pixel_scale_rad
 
         q = kernels.quick_checks(
-            self._ix, np.ascontiguousarray(b_all), np.asarray(sel, dtype=np.int64),
+            self.view.ix, np.ascontiguousarray(b_all), np.asarray(sel, dtype=np.int64),
             np.ascontiguousarray(assigns, dtype=np.int64), np.ascontiguousarray(ang),
             np.ascontiguousarray(tol), bool(mirror), int(trials),
-            self._match_radius_px() * pix, np.sqrt(2.0) * self.centroid_sigma_px * pix)
+            self.match_radius_px() * pix, np.sqrt(2.0) * self.centroid_sigma_px * pix)
         return quick_tuples(q)
 
-    def _verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
+    def verify(self, xy: NDArray, cam: Camera, sel: NDArray, assign: NDArray,
                 quick: tuple[float, NDArray, float, NDArray, NDArray],
                 b_all: NDArray | None = None) -> Candidate | None:
         """Full verification of a candidate that passed the quick check: refit on all its
@@ -195,11 +222,11 @@ class Verification:
         _, R, e_trials, det_i, cat_i = quick
         if b_all is None:
             b_all = cam.pixels_to_vectors(xy)
-        radius = self._match_radius_px() * cam.pixel_scale_rad
+        radius = self.match_radius_px() * cam.pixel_scale_rad
         sigma = self.centroid_sigma_px * cam.pixel_scale_rad
-        if not self._fov_uncertain and getattr(self, "_compiled_verify", False):
+        if not self.fov_uncertain and self.compiled:
             ok, det_i, cat_i, q, cov, res, p_false = kernels.verify_candidate(
-                self._ix, np.ascontiguousarray(b_all), np.ascontiguousarray(R),
+                self.view.ix, np.ascontiguousarray(b_all), np.ascontiguousarray(R),
                 float(e_trials), np.ascontiguousarray(det_i, dtype=np.int64),
                 np.ascontiguousarray(cat_i, dtype=np.int64),
                 np.ascontiguousarray(sel, dtype=np.int64),
@@ -207,43 +234,43 @@ class Verification:
             if not ok:
                 return None
             return Candidate(
-                q_cam_icrs=q, matches=list(zip(det_i.tolist(), self.ids[cat_i].tolist(),
+                q_cam_icrs=q, matches=list(zip(det_i.tolist(), self.view.ids[cat_i].tolist(),
                                                strict=True)),
                 residuals_rad=res, p_false=p_false, n_pattern=len(sel), camera=cam,
-                covariance=cov, _projector=self._project)
+                covariance=cov, _projector=self.view.project)
         refit = False
-        if self._fov_uncertain and len(det_i) >= 4:
-            cam = fit_camera_model([(xy[det_i], self.vectors[cat_i])], cam, ("focal",),
+        if self.fov_uncertain and len(det_i) >= 4:
+            cam = fit_camera_model([(xy[det_i], self.view.vectors[cat_i])], cam, ("focal",),
                                    q_cam_icrs=[rot.from_matrix(R)]).camera
             b_all = cam.pixels_to_vectors(xy)
-            radius = self._match_radius_px() * cam.pixel_scale_rad
+            radius = self.match_radius_px() * cam.pixel_scale_rad
             sigma = self.centroid_sigma_px * cam.pixel_scale_rad
             refit = True
-        R2 = rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+        R2 = rotation_from_pairs(b_all[det_i], self.view.vectors[cat_i])
         if R2 is None:
             return None
         # rotation angle between R and R2 from the trace: 1 − cos θ = (3 − tr)/2
         moved = np.sqrt(max(0.0, 2.0 * (3.0 - float(np.sum(R * R2))) / 2.0))
         if refit or moved > 0.25 * radius:
-            det_i, cat_i = self._associate_icrs(b_all, R2, radius)
+            det_i, cat_i = self.associate_icrs(b_all, R2, radius)
             if not keeps_pattern(det_i, cat_i, sel, assign, len(b_all)):
                 return None
         try:
-            final = wahba_unit(b_all[det_i], self.vectors[cat_i], sigma)
+            final = wahba_unit(b_all[det_i], self.view.vectors[cat_i], sigma)
         except ValueError:
             return None
         k_other = len(det_i) - len(sel)
         p_false = min(1.0, e_trials * binomial_tail(k_other, len(xy) - len(sel),
-                                                    self._p_hit(int(assign[0]), radius)))
+                                                    self.p_hit(int(assign[0]), radius)))
         return Candidate(
             q_cam_icrs=final.q_cam_icrs,
-            matches=[(int(d), int(self.ids[c])) for d, c in zip(det_i, cat_i, strict=True)],
+            matches=[(int(d), int(self.view.ids[c])) for d, c in zip(det_i, cat_i, strict=True)],
             residuals_rad=final.residuals_rad,
             p_false=p_false,
             n_pattern=len(sel),
             camera=cam,
             covariance=final.covariance * variance_factor(final),
-            _projector=self._project,
+            _projector=self.view.project,
         )
 
 

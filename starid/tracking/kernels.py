@@ -189,7 +189,7 @@ def wahba_near(q0, b, r, sigma_rad, converged_rad, max_steps):
 
 @_jit
 def tight_fix(pred_idx, j, n_within, d, b_all, vectors, q0, sigma_rad, cut_rad, smear):
-    """The tight prior's fix (:meth:`Tracking._solve_tracking`): the nearest pairs, one
+    """The tight prior's fix (:meth:`Tracker.solve`): the nearest pairs, one
     Gauss–Newton fit from the prior, pairs beyond ``cut_rad`` dropped and one refit from
     that fit. Returns (status, detections, catalogue rows, their vectors (n, 3),
     q, P, residuals, loss, the longest streak² (rad²) of the kept stars under ``smear``).

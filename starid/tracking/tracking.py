@@ -4,8 +4,10 @@ radius, Wahba, tight radius) and accepted with ≥ 2 stars when a chance coincid
 improbable.
 
 Example:
-    >>> from adfusion.starid.solver import Solver
-    >>> issubclass(Solver, Tracking)
+    >>> from adfusion import starid
+    >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
+    ...                   starid.Camera.pinhole(512, 480, 25.84))
+    >>> isinstance(s.tracker, Tracker)
     True
 """
 
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 from adfusion.starid.camera.model import Camera
@@ -35,7 +38,11 @@ from adfusion.maths.attitude import (
     wahba_unit,
 )
 
-__all__ = ["Tracking", "corner_sigma_px", "pair_within"]
+if TYPE_CHECKING:
+    from adfusion.starid.identify.catalog_view import CatalogView
+    from adfusion.starid.identify.verify import Verifier
+
+__all__ = ["Tracker", "corner_sigma_px", "pair_within"]
 
 # Gates wider than this many match radii let a two-star fit turn the frame far enough to
 # pair a false detection with some catalogue star: the chance is then bounded separately.
@@ -51,38 +58,43 @@ _NO_ROWS = np.zeros(0, dtype=np.int64)
 _NO_SMEAR = np.zeros(3)
 
 
-class Tracking:
-    """The tracking half of :class:`starid.Solver` (a mixin)."""
+class Tracker:
+    """The tracking part of :class:`starid.Solver`: a frame identified near an attitude
+    prior (:meth:`solve`).
 
-    def warm_up_tracking(self) -> bool:
-        """Load the compiled tracking path (:mod:`starid.tracking.kernels`, and the window
-        centroiding of :mod:`starid.detection.window_kernels`) now rather than
-        in the first tracked frame: ~0.1 s from numba's cache, or — the first time after
-        an install or an edit — ~5 s of CPU compiling it once. Call it (with
-        :meth:`Solver.warm_up`, which loads the lost-in-space kernels) before a real-time
-        loop. Returns whether a synthetic tracked frame (the catalogue seen at a fixed
-        attitude, told to the solver as a 0.01° prior) was accepted.
+    Args:
+        view: the catalogue (:class:`~adfusion.starid.identify.catalog_view.CatalogView`:
+            vectors, ids, the cached cone and the projection into a frame).
+        verifier: the solver's :class:`~adfusion.starid.identify.verify.Verifier` (the
+            match radius, the one-to-one association at an attitude).
+        camera: the solver's camera.
+        centroid_sigma_px: 1-σ centroid error (the fit's weights).
+        tolerance_rad: the pair-distance tolerance (two-star fixes' alternatives).
+        p_false_max_tracking: the acceptance threshold on ``p_false``.
+        max_fix_sigma_px: a fix less certain than this at the frame's corners is refused.
+        whole_streak_px: streaks longer than this are fitted as streaks.
 
-        >>> from adfusion import starid
-        >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
-        ...                   starid.Camera.pinhole(512, 480, 25.84))
-        >>> s.warm_up_tracking()
-        True
-        """
-        from adfusion.starid.detection.windows import detect_windows  # (detect_roi: no solver)
+    >>> from adfusion import starid
+    >>> from adfusion.starid import rotations as rot
+    >>> s = starid.Solver(starid.Catalog.hipparcos(mag_limit=5.0),
+    ...                   starid.Camera.pinhole(512, 480, 25.84))
+    >>> q = rot.q_cam_icrs_from_radec_roll(1.0, 0.5, 0.0)
+    >>> ids, xy = s.stars_in_view(q)
+    >>> s.tracker.solve(xy[:10], starid.Prior(q, 0.01), 0.0).ok
+    True
+    """
 
-        # the compiled window centroiding (starid.detection.window_kernels) of integer and float
-        # frames, as TrackingWindows uses it
-        for dtype in (np.uint16, np.float32, np.float64):
-            img = np.full((32, 32), 100, dtype)
-            img[15:17, 15:17] = 200
-            detect_windows(img, [[15.5, 15.5]], 4)
-        for dec in (0.5, -0.5, 1.2, -1.2, 0.0):
-            q = rot.q_cam_icrs_from_radec_roll(1.0, dec, 0.0)
-            pxy, _, idx = self._project_idx(q, self.camera)
-            if len(idx) >= 3:
-                return self.solve(pxy[:10], prior=Prior(q, 0.01)).ok
-        return False
+    def __init__(self, view: CatalogView, verifier: Verifier, camera: Camera,
+                 centroid_sigma_px: float, tolerance_rad: float, p_false_max_tracking: float,
+                 max_fix_sigma_px: float, whole_streak_px: float) -> None:
+        self.view = view
+        self.verifier = verifier
+        self.camera = camera
+        self.centroid_sigma_px = float(centroid_sigma_px)
+        self.tolerance_rad = float(tolerance_rad)
+        self.p_false_max_tracking = float(p_false_max_tracking)
+        self.max_fix_sigma_px = float(max_fix_sigma_px)
+        self.whole_streak_px = float(whole_streak_px)
 
     def _pairings_that_fit(self, b: NDArray, xy: NDArray, pred_xy: NDArray,
                            pred_idx: NDArray, gate_px: float) -> int:
@@ -94,13 +106,13 @@ class Tracking:
         if len(near[0]) == 0 or len(near[1]) == 0:
             return 0
         sep = math.acos(min(1.0, max(-1.0, float(b[0] @ b[1]))))
-        cosines = self.vectors[near[0]] @ self.vectors[near[1]].T
+        cosines = self.view.vectors[near[0]] @ self.view.vectors[near[1]].T
         ang = np.arccos(np.clip(cosines, -1.0, 1.0))
         fit = np.abs(ang - sep) <= self.tolerance_rad
         fit &= near[0][:, None] != near[1][None, :]
         return int(np.count_nonzero(fit))
 
-    def _solve_tracking(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
+    def solve(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
         """Tracking: predict the catalogue stars in the prior's field, associate the
         detections inside the prior's gate, refine, and accept with ≥ 2 stars when a
         chance coincidence is improbable.
@@ -125,15 +137,15 @@ class Tracking:
         """
         cam = self.camera
         gate_rad = math.radians(prior.k * prior.sigma_deg)
-        tight = self._match_radius_px()
+        tight = self.verifier.match_radius_px()
         wide = max(gate_rad / cam.pixel_scale_rad * 1.2 + tight, tight)
         if wide <= 2.5 * tight and cam._ideal_pinhole is not None:
-            sol = self._track_compiled(xy, prior, gate_rad, tight, wide, t0)
+            sol = self.track_compiled(xy, prior, gate_rad, tight, wide, t0)
             if sol is not None:
                 return sol
-        return self._track_numpy(xy, prior, t0)
+        return self.track_numpy(xy, prior, t0)
 
-    def _track_compiled(self, xy: NDArray, prior: Prior, gate_rad: float, tight: float,
+    def track_compiled(self, xy: NDArray, prior: Prior, gate_rad: float, tight: float,
                         wide: float, t0: float) -> Solution | None:
         """The tight prior's path for an undistorted pinhole, compiled; None when a fit's
         directions are collinear (the numpy path then says so in its words)."""
@@ -152,7 +164,7 @@ class Tracking:
         m = -gate_rad / cam.pixel_scale_rad
         rows, all_rows = self._tracking_rows(R0[2], half)
         pred_xy, pred_idx, b_all = predict_pinhole(
-            self.vectors, rows, all_rows, R0, A, c, math.cos(min(half + _CONE_SLACK, math.pi)),
+            self.view.vectors, rows, all_rows, R0, A, c, math.cos(min(half + _CONE_SLACK, math.pi)),
             -0.5 + m, cam.width - 0.5 - m, cam.height - 0.5 - m, xy, M1, off)
         if len(pred_xy) < 2:
             return Solution(False, f"{len(pred_xy)} catalogue star(s) predicted in view",
@@ -168,7 +180,7 @@ class Tracking:
         sigma = self.centroid_sigma_px * pix_rad
         smear = prior.smear_cam_rad
         status, det_i, cat_i, b_use, q, P, res, loss, longest2 = tk.tight_fix(
-            pred_idx, j, n_within, d, b_all, self.vectors, q0, sigma, tight * pix_rad,
+            pred_idx, j, n_within, d, b_all, self.view.vectors, q0, sigma, tight * pix_rad,
             _NO_SMEAR if smear is None else smear)
         if status == tk.FIT_FEW:
             return Solution(False, f"{len(det_i)} star(s) matched within {tight:.1f} px",
@@ -183,22 +195,22 @@ class Tracking:
         """The catalogue rows the prediction looks at: all of them for a catalogue small
         enough to scan (a few µs compiled, cheaper than a KD-tree query of a cone), else
         the solver's cached cone around ``axis``."""
-        if len(self.vectors) <= _SCAN_ALL_MAX:
+        if len(self.view.vectors) <= _SCAN_ALL_MAX:
             return _NO_ROWS, True
-        return self._cone(axis, half_rad)[0], False
+        return self.view.cone(axis, half_rad)[0], False
 
-    def _track_numpy(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
-        """:meth:`_solve_tracking` in numpy, for every prior and camera."""
+    def track_numpy(self, xy: NDArray, prior: Prior, t0: float) -> Solution:
+        """:meth:`solve` in numpy, for every prior and camera."""
         cam = self.camera
         q0 = prior.q_cam_icrs
         gate_rad = math.radians(prior.k * prior.sigma_deg)
         R0 = rot.to_matrix(q0)
-        pred_xy, pred_idx = self._predict(R0, cam, gate_rad)
+        pred_xy, pred_idx = self.view.predict(R0, cam, gate_rad)
         if len(pred_xy) < 2:
             return Solution(False, f"{len(pred_xy)} catalogue star(s) predicted in view",
                             mode="tracking")
         pix_rad = cam.pixel_scale_rad
-        tight = self._match_radius_px()
+        tight = self.verifier.match_radius_px()
         wide = max(gate_rad / pix_rad * 1.2 + tight, tight)
         # predicted stars × detections: a few dozen each, cheaper than building a tree
         dx = pred_xy[:, :1] - xy[:, 0]
@@ -233,15 +245,15 @@ class Tracking:
             # within a medium radius, then tighten through two fits
             medium = max(tight, 0.3 * wide)
             det_i, cat_i = pair_within(xy, pred_xy + shift, pred_idx, medium)
-            predicted = np.zeros(len(self.vectors), dtype=bool)
+            predicted = np.zeros(len(self.view.vectors), dtype=bool)
             predicted[pred_idx] = True
             for _ in range(2):
                 if len(det_i) < 2:
                     break
-                R = rotation_from_pairs(b_all[det_i], self.vectors[cat_i])
+                R = rotation_from_pairs(b_all[det_i], self.view.vectors[cat_i])
                 if R is None:
                     return Solution(False, "tracked stars are collinear", mode="tracking")
-                det_i, cat_i = self._associate_icrs(b_all, R, tight * pix_rad)
+                det_i, cat_i = self.verifier.associate_icrs(b_all, R, tight * pix_rad)
                 # keep only stars the prior predicted (tracking never jumps elsewhere)
                 keep = predicted[cat_i]
                 det_i, cat_i = det_i[keep], cat_i[keep]
@@ -253,8 +265,8 @@ class Tracking:
         try:
             # near a tight prior Gauss–Newton steps reach Wahba's optimum for less than
             # the SVD (the steady state of a filter loop)
-            w = wahba_near(q0, b_use, self.vectors[cat_i], sigma) if tight_prior \
-                else wahba_unit(b_use, self.vectors[cat_i], sigma)
+            w = wahba_near(q0, b_use, self.view.vectors[cat_i], sigma) if tight_prior \
+                else wahba_unit(b_use, self.view.vectors[cat_i], sigma)
             # pairs the fit cannot place within the match radius (a noise blob or a
             # streak's piece nearer the prediction than the star) leave; one refit,
             # from this fit (its optimum is within a pixel or so)
@@ -262,7 +274,7 @@ class Tracking:
             n_keep = int(np.count_nonzero(keep))
             if 2 <= n_keep < len(keep):
                 det_i, cat_i, b_use = det_i[keep], cat_i[keep], b_use[keep]
-                w = wahba_near(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma)
+                w = wahba_near(w.q_cam_icrs, b_use, self.view.vectors[cat_i], sigma)
         except ValueError as e:
             return Solution(False, f"tracking fit failed: {e}", mode="tracking")
         return self._tracking_fix(xy, prior, pred_xy, pred_idx, n_hyp, det_i, cat_i, b_use,
@@ -287,7 +299,7 @@ class Tracking:
                 longest2 = float(np.einsum("ij,ij->i", v, v).max())
             if longest2 > whole * whole:
                 try:
-                    w = refine_streaked(w.q_cam_icrs, b_use, self.vectors[cat_i], sigma,
+                    w = refine_streaked(w.q_cam_icrs, b_use, self.view.vectors[cat_i], sigma,
                                         prior.smear_cam_rad, whole)
                 except ValueError as e:
                     return Solution(False, f"tracking fit failed: {e}", mode="tracking")
@@ -345,11 +357,11 @@ class Tracking:
                                                          cov, prior, pred_idx, tight)
             if n_alt:
                 p_false = max(p_false, n_alt / (n_alt + 1.0))
-        matches = list(zip(det_i.tolist(), self.ids[cat_i].tolist(), strict=True))
+        matches = list(zip(det_i.tolist(), self.view.ids[cat_i].tolist(), strict=True))
         cand = Candidate(
             q_cam_icrs=w.q_cam_icrs, matches=matches, residuals_rad=w.residuals_rad,
             p_false=p_false, n_pattern=len(det_i), camera=cam, covariance=cov,
-            _projector=self._project,
+            _projector=self.view.project,
         )
         if p_false > self.p_false_max_tracking:
             return Solution(False, f"ambiguous: {len(det_i)} tracked stars, p_false "
@@ -410,7 +422,7 @@ class Tracking:
         if not len(loose):
             return 0
         # the predicted stars where the fix puts them
-        v_cam = rot.rotate(q_fix, self.vectors[pred_idx])
+        v_cam = rot.rotate(q_fix, self.view.vectors[pred_idx])
         front = v_cam[:, 2] > 0
         pxy = self.camera.vectors_to_pixels(v_cam[front])
         rows = pred_idx[front]
