@@ -49,6 +49,8 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
+from adfusion.outfiles import OutputLock, temp_name
+
 ArrayLike = Any
 
 IMAGE_TOPIC = topics.CAMERA_IMAGE
@@ -279,11 +281,14 @@ class LogWriter:
             run seconds: every time is stored ``+ clock_offset_ns``, recorded in the
             ``clock`` metadata (``start_utc``, ``offset_ns``), which
             :class:`~adfusion.logs.reader.McapLogReader` subtracts again.
-        atomic: write to ``path + ".partial"`` and rename it to ``path`` when :meth:`close`
-            completes, so ``path`` is never a half-written file (a killed writer leaves the
-            ``.partial`` file, readable up to its last chunk). A run that fails calls
-            :meth:`abort`: the log is closed with an ``incomplete`` metadata record saying
-            why and renamed all the same (or removed when the disk is full).
+        atomic: hold an exclusive lock on ``path`` (a second writer of it gets
+            :class:`~adfusion.outfiles.OutputBusy` at once), write to a temporary name of
+            this writer's own beside it (:attr:`partial_path`, ``.adf-<random>.tmp.mcap``)
+            and rename that to ``path`` when :meth:`close` completes, so ``path`` is never a
+            half-written file nor another run's (a killed writer leaves the temporary file,
+            readable up to its last chunk). A run that fails calls :meth:`abort`: the log is
+            closed with an ``incomplete`` metadata record saying why and renamed all the
+            same (or removed when the disk is full).
 
     Topics are registered on first use: the Foxglove ones by the typed methods, the JSON ones by
     :meth:`write_json` with the schema from :data:`logs.schemas.JSON_SCHEMAS` (or one given to
@@ -295,8 +300,13 @@ class LogWriter:
                  fsync: bool = False, start_utc: Any = None, atomic: bool = False) -> None:
         self.path = os.fspath(path)
         self.clock_offset_ns = 0 if start_utc is None else utc_ns(start_utc)
-        self.partial_path = self.path + ".partial" if atomic else self.path
-        self._file = _UnbufferedFile(self.partial_path, self.path)
+        self._lock = OutputLock(self.path).acquire() if atomic else None
+        try:
+            self.partial_path = os.fspath(temp_name(self.path)) if atomic else self.path
+            self._file = _UnbufferedFile(self.partial_path, self.path)
+        except BaseException:
+            self._release()
+            raise
         self._fsync = fsync
         self._writer = Writer(
             self._file,  # type: ignore[arg-type]
@@ -336,15 +346,22 @@ class LogWriter:
             return
         self._closed = True
         try:
-            if self._digests:
-                self._writer.add_metadata(DIGESTS, dict(self._digests))
-            self._writer.finish()
-            if self._fsync:
-                self._file.fsync()
+            try:
+                if self._digests:
+                    self._writer.add_metadata(DIGESTS, dict(self._digests))
+                self._writer.finish()
+                if self._fsync:
+                    self._file.fsync()
+            finally:
+                self._file.close()
+            if self.partial_path != self.path:
+                os.replace(self.partial_path, self.path)
         finally:
-            self._file.close()
-        if self.partial_path != self.path:
-            os.replace(self.partial_path, self.path)
+            self._release()  # the lock outlives the rename: no one sees a half-there file
+
+    def _release(self) -> None:
+        if self._lock is not None:
+            self._lock.release()
 
     def abort(self, reason: str) -> None:
         """End a run that failed: an ``incomplete`` metadata record (``reason``, messages
@@ -364,6 +381,7 @@ class LogWriter:
                     os.remove(self.partial_path)
                 except OSError:
                     pass
+            self._release()
 
     def flush(self) -> None:
         """End the chunk in progress now (it becomes readable after a crash)."""

@@ -87,13 +87,14 @@ def test_replay_never_overwrites_its_input(sim, tmp_path, monkeypatch, capsys):
     for out in (str(inp), "./in.mcap", "in.mcap", str(link), str(hard)):
         with pytest.raises(ValueError, match="is the input"):
             replay(inp, out, progress=False)
-        assert main(["replay", str(inp), "-o", out]) == 1
+        assert main(["replay", str(inp), "-o", out]) == 2  # a usage error, as in solve
         err = capsys.readouterr().err
         assert "is the input" in err and len(err.strip().splitlines()) == 1
     assert _sha(inp) == before and inp.stat().st_size == sim.stat().st_size
-    # a complete output appears under its name only at the end: no .partial left behind
+    # a complete output appears under its name only at the end: no temporary file or lock
+    # left behind
     s = replay(inp, tmp_path / "out.mcap", progress=False)
-    assert s.frames == 90 and not (tmp_path / "out.mcap.partial").exists()
+    assert s.frames == 90 and not list(tmp_path.glob(".adf-*"))
 
 
 # --------------------------------------------------------------------------- item 4
@@ -349,4 +350,4 @@ def test_a_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path):
     assert p.returncode == 1, p.stderr
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
     assert "x.mcap" in p.stderr and "too large" in p.stderr.lower()
-    assert not out.exists() and not Path(str(out) + ".partial").exists()
+    assert not out.exists() and not list(tmp_path.glob(".adf-*"))  # nor a temporary file

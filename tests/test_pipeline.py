@@ -132,10 +132,13 @@ def test_a_replay_killed_mid_run_leaves_a_readable_log(rendered, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "adfusion.app.cli", "replay", str(sim), "-o",
                              str(out)], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
-    partial = tmp_path / "killed.mcap.partial"  # written under this name until complete
+    def partial():  # the writer's own temporary name beside the output, until complete
+        found = list(tmp_path.glob(".adf-*.tmp.mcap"))
+        return found[0] if found else None
+
     deadline = time.time() + 60
-    while time.time() < deadline and (not partial.exists()
-                                      or partial.stat().st_size < 3_000_000):
+    while time.time() < deadline and (partial() is None
+                                      or partial().stat().st_size < 3_000_000):
         time.sleep(0.05)
         if proc.poll() is not None:
             break
@@ -147,7 +150,7 @@ def test_a_replay_killed_mid_run_leaves_a_readable_log(rendered, tmp_path):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the reader warns where the file broke
-        reader = McapLogReader(partial)
+        reader = McapLogReader(partial())
         msgs = list(reader)
     frames = [m for m in msgs if m.topic == "/estimate/state"]
     assert len(frames) >= 5  # everything up to the last complete chunk

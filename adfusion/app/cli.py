@@ -41,6 +41,7 @@ from adfusion.app.commands.report import cmd_report
 from adfusion.app.commands.simulate import cmd_simulate
 from adfusion.app.commands.solve import cmd_solve
 from adfusion.app.errors import UsageError
+from adfusion.outfiles import OutputBusy, OutputClash
 
 
 def build_parser(bench: bool = True) -> argparse.ArgumentParser:
@@ -279,7 +280,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
         return int(args.func(args) or 0)
-    except (UsageError, FileNotFoundError) as e:  # a path named on the command line is absent
+    except (UsageError, FileNotFoundError, OutputClash, OutputBusy) as e:
+        # the command line is wrong: a path that is absent, an output that is an input or
+        # is being written by another run
         print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
         return 2
     except BrokenPipeError:  # output piped into `head`: not an error

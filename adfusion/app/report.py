@@ -40,6 +40,7 @@ import numpy as np
 from adfusion.app.errors import UsageError
 from adfusion.logs import McapLogReader, topics
 from adfusion.maths import rotations as rot
+from adfusion.outfiles import refuse_overwrite
 
 __all__ = ["log_problems", "report"]
 
@@ -109,6 +110,11 @@ class _Log:
         return k
 
 
+#: the files :func:`report` writes into its folder
+REPORT_FILES = ("attitude_error.png", "nis.png", "stars.png", "residuals.png", "solve_time.png",
+                "bias.png", "boresight_track.png", "summary.md", "report.html")
+
+
 def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False) -> list[Path]:
     """Write the plots, ``report.html`` and ``summary.md`` for a replayed log; returns the
     files written (the HTML page last). ``progress`` shows a bar while reading the log."""
@@ -116,6 +122,7 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
 
     matplotlib.use("Agg")
     out = Path(out_dir)
+    refuse_overwrite([("-o", out / f) for f in REPORT_FILES], [log_path])  # before any work
     out.mkdir(parents=True, exist_ok=True)
     log = _Log(log_path, progress)
     lines: list[str] = []

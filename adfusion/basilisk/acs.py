@@ -276,7 +276,7 @@ def run_acs(name: str, out_path: str | Path | None, seed: int = 0, *,
                      f"({cfg.duration_s:g} s simulated)")
         t1 = time.perf_counter()
         if loop == "adfusion" and out_path is not None:
-            with LogWriter(out_path) as log:
+            with LogWriter(out_path, atomic=True) as log:
                 runs[loop] = run_loop(cfg, loop, seed, catalogs=(sky, cat), solver=solver,
                                       log=log, images=images)
         else:

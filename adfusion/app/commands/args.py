@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from typing import NoReturn
 
 from adfusion.app.errors import UsageError
+from adfusion.outfiles import OutputClash, refuse_overwrite
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".pgm", ".ppm")
 
@@ -76,26 +77,14 @@ def _output_file(path: str, flag: str = "-o") -> None:
         raise UsageError(f"{flag} {path}: the folder {parent} does not exist")
 
 
-def _same_path(a: str, b: str) -> bool:
-    """Whether two names are one file (an existing one through links, else by name, as
-    the file system compares names: ``normcase`` folds case where it is insensitive)."""
-    if os.path.exists(a) and os.path.exists(b):
-        return os.path.samefile(a, b)
-    return os.path.normcase(os.path.realpath(a)) == os.path.normcase(os.path.realpath(b))
-
-
-def _outputs_apart(outputs: list[tuple[str, str]], inputs: list[str]) -> None:
-    """Outputs never overwrite inputs, nor each other: each (flag, path) of ``outputs``
-    against every input and every other output (a usage error naming both)."""
-    for k, (flag, path) in enumerate(outputs):
-        for src in inputs:
-            if _same_path(path, src):
-                raise UsageError(f"{flag} {path} is the input {src}: give another name "
-                                 "(outputs never overwrite inputs)")
-        for other_flag, other in outputs[k + 1:]:
-            if _same_path(path, other):
-                raise UsageError(f"{flag} and {other_flag} both name {path}: give each "
-                                 "its own file")
+def _outputs_apart(outputs: list[tuple[str, str]], inputs: list) -> None:
+    """Outputs never overwrite inputs, nor each other (:func:`adfusion.outfiles.refuse_overwrite`,
+    the one guard of every command: same file by inode, else by resolved name); a usage
+    error naming both."""
+    try:
+        refuse_overwrite(outputs, inputs)
+    except OutputClash as exc:
+        raise UsageError(str(exc)) from None
 
 
 def _output_folder(path: str, flag: str = "-o") -> None:

@@ -13,9 +13,12 @@ from adfusion.app.commands.args import (
     _fov_nominal,
     _image_paths,
     _julian_year_now,
+    _output_file,
+    _outputs_apart,
     parse_fov,
 )
 from adfusion.app.errors import UsageError
+from adfusion.outfiles import atomic_output
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -28,6 +31,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     _camera_or_fov(args)
     paths = _image_paths(args.images)
+    _output_file(args.output)
+    _outputs_apart([("-o", args.output)], [*paths, args.camera])  # before any work
     if args.camera:
         camera = read_camera_yaml(args.camera)
     elif args.fov is None:
@@ -60,10 +65,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms, **fov_kw)
     cam = res.camera
-    write_camera_yaml(cam, args.output,
-                      comment=f"adfusion calibrate: {res.n_frames} frames, "
-                              f"{sum(res.stars_per_frame)} stars, terms {','.join(res.fit.terms)}",
-                      sigma_px=res.sigma_px, rms_px=res.fit.rms_px, frames=res.n_frames)
+    with atomic_output(args.output) as tmp:
+        write_camera_yaml(cam, tmp,
+                          comment=f"adfusion calibrate: {res.n_frames} frames, "
+                                  f"{sum(res.stars_per_frame)} stars, "
+                                  f"terms {','.join(res.fit.terms)}",
+                          sigma_px=res.sigma_px, rms_px=res.fit.rms_px, frames=res.n_frames)
     per_frame = [{"image": paths[k].name, "stars": n,
                   "rms_px": round(float(np.sqrt(np.mean(np.sum(r * r, axis=1)))), 3)}
                  for k, n, r in zip(res.frames_used, res.stars_per_frame, res.fit.residuals_px,

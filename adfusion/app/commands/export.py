@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from adfusion.app.commands.args import _outputs_apart
+from adfusion.outfiles import atomic_output
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -17,9 +18,11 @@ def cmd_export(args: argparse.Namespace) -> int:
                     if path], [args.log])
     history = read_attitude_history(args.log, smoothed=args.smoothed, start_utc=args.start_utc)
     if args.aem:
-        write_aem(history, args.aem)
+        with atomic_output(args.aem) as tmp:
+            write_aem(history, tmp)
         print(f"AEM: {len(history.t)} attitudes → {args.aem}")
     if args.csv:
-        write_csv(history, args.csv)
+        with atomic_output(args.csv) as tmp:
+            write_csv(history, tmp)
         print(f"CSV: {len(history.t)} rows → {args.csv}")
     return 0

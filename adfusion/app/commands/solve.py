@@ -14,10 +14,12 @@ from adfusion.app.commands.args import (
     _image_paths,
     _julian_year_now,
     _output_file,
+    _output_folder,
     _outputs_apart,
     parse_fov,
 )
 from adfusion.app.errors import UsageError
+from adfusion.outfiles import atomic_output, write_atomic
 
 
 class _Solvers:
@@ -93,12 +95,19 @@ def cmd_solve(args: argparse.Namespace) -> int:
         raise UsageError("--overlay takes one image (use --out-dir for a batch)")
     if args.overlay:
         _output_file(args.overlay, "--overlay")
-        _outputs_apart([("--overlay", args.overlay)], paths)  # (it must name an image)
     out_dir = None
     if args.out_dir or args.wcs or args.corr:
         from pathlib import Path
 
         out_dir = Path(args.out_dir or ".")
+        _output_folder(str(out_dir), "-o")
+    # every file this run writes, against every file it reads and each other, before any
+    # work (two images of one name in two folders would write one product)
+    _outputs_apart(([("--overlay", args.overlay)] if args.overlay else [])
+                   + [(flag, out_dir / f"{p.stem}{suffix}") for p in paths
+                      for flag, suffix in _products(args) if out_dir is not None],
+                   [*paths, args.camera])
+    if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
     truth_q = None
     if args.example:
@@ -147,8 +156,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
 
                 from adfusion.app.overlay import draw_solution
 
-                if not cv2.imwrite(args.overlay, draw_solution(image, det.xy, sol)):
-                    raise ValueError(f"could not write the overlay to {args.overlay}")
+                with atomic_output(args.overlay) as tmp:  # (keeps the suffix OpenCV reads)
+                    if not cv2.imwrite(str(tmp), draw_solution(image, det.xy, sol)):
+                        raise ValueError(f"could not write the overlay to {args.overlay}")
                 print(f"overlay → {args.overlay}", file=sys.stderr)
         records.append(rec)
         if bar is not None:
@@ -185,11 +195,19 @@ def _write_products(out_dir, name: str, rec: dict, sol, args: argparse.Namespace
     from adfusion.app.products import write_corr, write_wcs
 
     stem = Path(name).stem
-    (out_dir / f"{stem}.json").write_text(json.dumps(rec, indent=2) + "\n")
+    write_atomic(out_dir / f"{stem}.json", json.dumps(rec, indent=2) + "\n")
     if sol.ok and args.wcs:
-        write_wcs(out_dir / f"{stem}.wcs", sol, epoch)
+        with atomic_output(out_dir / f"{stem}.wcs") as tmp:
+            write_wcs(tmp, sol, epoch)
     if sol.ok and args.corr:
-        write_corr(out_dir / f"{stem}.corr", sol, rec["matches"])
+        with atomic_output(out_dir / f"{stem}.corr") as tmp:
+            write_corr(tmp, sol, rec["matches"])
+
+
+def _products(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """The files ``--out-dir`` gets per image: (the flag asking for it, its suffix)."""
+    return ([("-o", ".json")] + ([("--wcs", ".wcs")] if args.wcs else [])
+            + ([("--corr", ".corr")] if args.corr else []))
 
 
 def _no_evidence(out: dict) -> bool:

@@ -19,7 +19,6 @@ Example:
 from __future__ import annotations
 
 import gc
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -50,6 +49,7 @@ from adfusion.estimation.estimator import Estimator
 from adfusion.estimation.mekf_kernels import warm_up as warm_up_filter
 from adfusion.logs import topics
 from adfusion.maths import rotations as rot
+from adfusion.outfiles import refuse_overwrite
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
@@ -426,8 +426,11 @@ def replay(
     (smallest) and ``"none"`` choose explicitly. ``layout=True`` writes a Foxglove layout
     beside the output (``OUT.layout.json``, :class:`~adfusion.app.replay.sinks.LayoutSink`).
 
-    ``out_path`` is never the input (the same file by inode: a symlink or ``./X`` too);
-    it is written as ``out_path + ".partial"`` and renamed when complete. A replay stopped
+    ``out_path`` is never the input nor a file of an input folder (the same file by inode:
+    a symlink or ``./X`` too; :class:`~adfusion.outfiles.OutputClash`); it is locked
+    against a second writer (:class:`~adfusion.outfiles.OutputBusy`), written under a
+    temporary name of its own and renamed when complete (:class:`adfusion.logs.LogWriter`,
+    ``atomic``). A replay stopped
     by an exception or Ctrl-C leaves it closed and marked ``incomplete`` (metadata). Every
     input problem and every dropped input is in ``summary.problems`` and in the output's
     ``problems`` metadata. ``config`` supplies the run configuration for a log without one;
@@ -436,10 +439,14 @@ def replay(
 
     Process-wide side effect: :func:`adfusion.app.detect_worker.keep_freed_memory` (glibc
     keeps freed blocks of up to 4 MB for reuse instead of returning them to the kernel)."""
-    from adfusion.app.replay.sources import open_input
-
     t_start = time.perf_counter()
-    _refuse_to_overwrite(in_path, out_path)
+    from adfusion.app.replay.sources import input_files, open_input
+
+    # before any work: the output (and its layout) against the input, and against every
+    # file of an input folder (a frame folder, a rosbag2 folder)
+    refuse_overwrite([("-o", out_path)]
+                     + ([("the layout", LayoutSink.path_for(out_path))] if layout else []),
+                     [in_path, *input_files(in_path)])
     keep_freed_memory()
     if options is None:
         options = ReplayOptions(use_gyro, use_mag, mag_limit)
@@ -468,20 +475,6 @@ def replay(
         ahead.close()
     summary.wall_s = time.perf_counter() - t_start
     return summary
-
-
-def _refuse_to_overwrite(in_path: str | Path, out_path: str | Path) -> None:
-    """The output must not be the input: same file by device and inode (so ``./X``, a
-    symlink or a hard link to X count), or the partial file's name."""
-    if os.path.exists(out_path) and os.path.exists(in_path) and os.path.samefile(in_path,
-                                                                                 out_path):
-        raise ValueError(f"the output {out_path} is the input {in_path}: give another name "
-                         "(a replay never overwrites its input)")
-    partial = str(out_path) + ".partial"
-    if os.path.exists(partial) and os.path.exists(in_path) and os.path.samefile(in_path,
-                                                                                partial):
-        raise ValueError(f"the output's temporary name {partial} is the input: give "
-                         "another output name")
 
 
 class _SetupOutOfCollection:

@@ -37,7 +37,8 @@ def simulate(scenario, out_path: str | Path, progress: bool = False) -> int:
         bar = tqdm(total=len(scenario.t_frame), unit="frame", desc="simulate",
                    mininterval=0.5)
     heads = getattr(scenario, "heads", [scenario])
-    # written as out_path + ".partial", renamed when complete; a failure marks it incomplete
+    # locked, written under a temporary name, renamed when complete; a failure marks it
+    # incomplete (LogWriter atomic)
     with LogWriter(out_path, start_utc=scenario.start_utc, atomic=True) as log:
         log.add_metadata("config", to_jsonable(scenario.config))
         mounts = []

@@ -339,17 +339,27 @@ class LayoutSink:
     3σ bounds, the NIS, the stars per frame and the star-ID mode."""
 
     def __init__(self, out_path) -> None:
+        self.path = self.path_for(out_path)
+
+    @staticmethod
+    def path_for(out_path):
+        """The layout's file for the output ``out_path``: ``OUT.layout.json`` beside it.
+
+        >>> LayoutSink.path_for("runs/flight.mcap").as_posix()
+        'runs/flight.layout.json'
+        """
         from pathlib import Path
 
         out = Path(out_path)
-        self.path = out.with_name(out.stem + ".layout.json")
+        return out.with_name(out.stem + ".layout.json")
 
     def open(self, run: Run) -> None:
         import json
 
         from adfusion.app.layout import foxglove_layout
+        from adfusion.outfiles import write_atomic
 
-        self.path.write_text(json.dumps(foxglove_layout(truth=True), indent=2))
+        write_atomic(self.path, json.dumps(foxglove_layout(truth=True), indent=2))
 
     def take(self, step: Step) -> None:
         pass

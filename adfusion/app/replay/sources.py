@@ -33,7 +33,8 @@ from adfusion.logs import (
     read_sensor_csv,
     topics,
 )
-from adfusion.logs.sources import to_grey
+from adfusion.logs.sources import IMAGE_SUFFIXES, to_grey
+from adfusion.outfiles import files_in
 
 __all__ = ["FolderInput", "McapInput", "Ros2BagInput", "Source", "VideoInput", "open_input"]
 
@@ -468,6 +469,20 @@ def _ns_datetime(ns: int):
 
 
 VIDEO_SUFFIXES = (".avi", ".mp4", ".mkv", ".mov", ".mpg", ".mpeg", ".m4v", ".webm", ".wmv")
+
+
+def input_files(path: str | os.PathLike[str]) -> list[Path]:
+    """The files a replay of ``path`` reads (besides ``--imu``, ``--camera`` …): the file
+    itself, or those of a folder — every file of a rosbag2 folder, the images of a frame
+    folder — for the output guard (:func:`adfusion.outfiles.refuse_overwrite`).
+
+    >>> input_files("flight.mcap")
+    [PosixPath('flight.mcap')]
+    """
+    p = Path(path)
+    if not p.is_dir():
+        return [p]
+    return files_in([p], None if is_ros2_bag(p) else IMAGE_SUFFIXES)
 
 
 def open_input(path: str | os.PathLike[str], *, fps: float | None = None,
