@@ -39,6 +39,8 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 from google.protobuf.timestamp_pb2 import Timestamp
 
+from adfusion.imagefiles import decode_frame_bytes
+
 ArrayLike = Any
 
 # Colours of the annotation layers (RGBA, 0..1) and the ``role`` tag that the reader keys on.
@@ -420,10 +422,8 @@ def decode(schema_name: str, data: bytes) -> Any:
     if isinstance(msg, RawImage):
         return _raw_image_array(msg)
     if isinstance(msg, CompressedImage):
-        img = cv2.imdecode(np.frombuffer(msg.data, np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise ValueError(f"cannot decode a {msg.format!r} CompressedImage")
-        return img
+        # the project's one decoder: pixel cap before decoding, truncation refused
+        return decode_frame_bytes(msg.data, f"a {msg.format!r} CompressedImage", grey=False)
     if isinstance(msg, ImageAnnotations):
         return _annotations_dict(msg)
     if isinstance(msg, PoseInFrame):

@@ -99,7 +99,8 @@ FILTER_STATE = _object(
         "q_body_icrs": _vec(4, _QUAT + "; rotates ICRS vectors into the body frame"),
         "bias": {**_vec(3, "gyro bias estimate, rad/s, body frame (null: no gyro)"),
                  "type": ["array", "null"]},
-        "omega": _vec(3, "body rate estimate, rad/s, body frame (video-only filter)"),
+        "omega": _vec(3, "body rate estimate, rad/s, body frame (without a gyro: "
+                         "video-only, or a gyro outage)"),
         "cov_diag": _vec(None, "covariance diagonal: attitude error (rad^2, body axes), then "
                                "bias or rate ((rad/s)^2)"),
         "nis": {**_NUM, "description": "normalised innovation squared of this frame's star "

@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import heapq
 import io
+import itertools
 import math
 import os
 import warnings
@@ -39,6 +40,8 @@ import numpy as np
 from adfusion.logs import topics
 from adfusion.logs.message import Message
 from adfusion.logs.reader import McapLogReader, McapReadWarning
+
+from adfusion.imagefiles import ImageFileError, max_image_pixels, read_frame_file, shown_path
 
 IMAGE_TOPIC = topics.CAMERA_IMAGE
 GYRO_TOPIC = topics.GYRO
@@ -181,11 +184,15 @@ def _check_t0(t0_s: Any) -> None:
 
 def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
                  timestamps_csv: str | os.PathLike[str] | None) -> list[float]:
+    """The time of each frame of ``names``: ``t0_s + i / fps``, or a timestamps CSV's
+    (``filename, t_s``; then ``names`` is put in time order, in place). A CSV's negative
+    time, second time for one file, or one time for two files is a ``ValueError`` naming
+    the file and line."""
     _check_t0(t0_s)
     if timestamps_csv is None:
         _check_fps(fps, "give fps (> 0) or a timestamps CSV")
         return [t0_s + i / fps for i in range(len(names))]
-    times: dict[str, float] = {}
+    times: dict[str, tuple[float, int]] = {}  # file name → (t_s, line)
     fields, rows, reader = _csv_rows(timestamps_csv)
     if not {"filename", "t_s"} <= set(fields):
         raise ValueError(f"{timestamps_csv}: needs the columns 'filename' and 't_s' (have "
@@ -193,26 +200,46 @@ def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
     try:
         for row in rows:
             t_s = _finite((row.get("t_s") or "").strip(), "t_s")
-            times[os.path.basename(row.get("filename") or "")] = t_s
+            if t_s < 0:
+                raise ValueError(f"t_s {t_s:g} < 0: times are seconds ≥ 0 (shift them all "
+                                 "by the same amount)")
+            name = os.path.basename(row.get("filename") or "")
+            if name in times:  # a second time for one frame: which one is true?
+                raise ValueError(f"{name} is also at line {times[name][1]}: give each "
+                                 "frame one time")
+            times[name] = (t_s, reader.line_num)
     except (ValueError, csv.Error) as exc:
         raise ValueError(f"{timestamps_csv}: line {reader.line_num}: {exc}") from None
     missing = [n for n in names if n not in times]
     if missing:
         raise ValueError(f"{timestamps_csv}: no time for {missing[:3]} ({len(missing)} images)")
-    return [times[n] for n in names]
+    # the frames are replayed in the order of their times (the file's truth, whatever
+    # the names' order); two frames at one time cannot both be true
+    names.sort(key=lambda n: times[n][0])
+    for a, b in itertools.pairwise(names):
+        (ta, la), (tb, lb) = times[a], times[b]
+        if tb == ta:
+            raise ValueError(f"{timestamps_csv}: line {lb}: {b} has the time of {a} (line "
+                             f"{la}): t_s {tb:g} for both; give each frame its own time")
+    return [times[n][0] for n in names]
 
 
 class ImageFolderSource:
-    """Images of a folder in name order, with a sensor CSV merged in by time.
+    """Images of a folder in name order (in time order with a timestamps CSV), with a sensor
+    CSV merged in by time.
 
     Args:
         folder: directory of images (``.png``, ``.tif``, ``.jpg``, ``.pgm``, ... ).
         fps: frame rate when there is no timestamps CSV; frame ``i`` is at ``t0_s + i / fps``.
         t0_s: time of the first frame with ``fps``.
-        timestamps_csv: CSV with columns ``filename, t_s`` (file name without folder).
+        timestamps_csv: CSV with columns ``filename, t_s`` (file name without folder); the
+            frames are then replayed in the order of their times.
         sensors_csv: gyro/magnetometer CSV, see :func:`read_sensor_csv`.
 
-    An unreadable image is skipped with a warning naming it (the frames around it are fine).
+    Frames are read by :func:`adfusion.imagefiles.read_frame_file` (names of any bytes,
+    the pixel cap ``ADFUSION_MAX_IMAGE_PIXELS``, FITS through astropy). An unreadable image
+    — truncated, over the cap, not decodable — is skipped with a warning naming it (the
+    frames around it are fine).
     """
 
     def __init__(self, folder: str | os.PathLike[str], *, fps: float | None = None,
@@ -226,16 +253,20 @@ class ImageFolderSource:
         self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv)
         self.sensors_csv = sensors_csv
         self.problems: list[str] = []
+        self.unreadable: list[str] = []  # why each skipped frame was not read, in time order
+        max_image_pixels()  # a bad ADFUSION_MAX_IMAGE_PIXELS is said once, here
 
     def frames(self) -> Iterator[Message]:
         """The images alone, in time order."""
         for t_s, name in sorted(zip(self.times, self.names, strict=True)):
-            image = cv2.imread(str(self.folder / name), cv2.IMREAD_UNCHANGED)
-            if image is None:
-                _report(self.problems, f"{self.folder / name}: unreadable image at t = {t_s} s;"
-                        " skipped")
+            try:
+                image = read_frame_file(self.folder / name)
+            except (ImageFileError, OSError) as exc:  # truncated, too big, not decodable
+                self.unreadable.append(str(exc))
+                _report(self.problems, f"{shown_path(self.folder / name)}: unreadable image "
+                        f"at t = {t_s} s; skipped")
                 continue
-            yield Message(t_s, IMAGE_TOPIC, to_grey(image))
+            yield Message(t_s, IMAGE_TOPIC, image)
 
     def __iter__(self) -> Iterator[Message]:
         sensors = ([] if self.sensors_csv is None

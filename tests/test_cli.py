@@ -177,3 +177,69 @@ def test_a_rough_field_of_view_names_its_tolerance(shared_dir, capsys, tmp_path)
     err = capsys.readouterr().err
     assert "no frame of 8 was identified" in err and "--fov-error" in err
     assert out_log.exists()  # the output is written either way
+
+
+def test_a_fov_error_beyond_the_field_of_view_names_the_flag(capsys, tmp_path):
+    """``--fov-error 6`` with a 5.7° lens said "fov_error_deg must be in [0, 5.70)": the
+    Python parameter, exit 1. It is the flag's usage error, with the fix."""
+    import cv2
+    import numpy as np
+
+    img = tmp_path / "f.png"
+    cv2.imwrite(str(img), np.zeros((48, 64), np.uint8))
+    assert main(["solve", str(img), "--fov", "5.7", "--fov-error", "6"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--fov-error 6: must be below the camera's 5.7°" in err[0]
+    assert "fov_error_deg" not in err[0] and "--fov LO:HI" in err[0]
+
+
+def test_every_option_has_help_and_says_its_default():
+    """``--method`` had no help, ``--sigma`` did not say its default (new-user trial)."""
+    import argparse
+
+    from adfusion.app.cli import build_parser
+
+    def walk(parser, path):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sub in a.choices.items():
+                    yield from walk(sub, [*path, name])
+            elif not isinstance(a, argparse._HelpAction):
+                yield " ".join(path), a
+
+    found = list(walk(build_parser(bench=True), []))
+    assert len(found) > 100
+    no_help = [(cmd, a.dest) for cmd, a in found if not a.help or a.help == argparse.SUPPRESS]
+    assert no_help == []
+    silent = [(cmd, a.dest) for cmd, a in found
+              if a.option_strings and a.default not in (None, False, True, argparse.SUPPRESS)
+              and "default" not in a.help]
+    assert silent == []
+    import subprocess
+    import sys
+
+    for cmd in ("solve", "replay", "calibrate", "simulate", "bench starid"):  # help renders
+        p = subprocess.run([sys.executable, "-m", "adfusion", *cmd.split(), "--help"],
+                           capture_output=True, text=True, timeout=60)
+        assert p.returncode == 0 and "default" in p.stdout, (cmd, p.stderr)
+
+
+def test_a_closed_pipe_keeps_the_exit_status(tmp_path):
+    """``adfusion solve FRAME | head -0`` exited 0 for a frame that was not identified: the
+    write that met the closed pipe ended the command before its own status (issue 33)."""
+    import subprocess
+    import sys
+
+    import cv2
+    import numpy as np
+
+    noise = tmp_path / "noise.png"
+    cv2.imwrite(str(noise), np.random.default_rng(3).integers(0, 30, (96, 128), np.uint8))
+    for argv, want in ((["solve", str(noise), "--fov", "10"], 1),
+                       (["solve", "--example"], 0), (["topics"], 0)):
+        p = subprocess.Popen([sys.executable, "-m", "adfusion", *argv],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        p.stdout.close()  # the reader is gone before the first line
+        err = p.stderr.read().decode()
+        assert p.wait(timeout=120) == want, (argv, err)
+        assert "Traceback" not in err and "BrokenPipe" not in err

@@ -351,3 +351,13 @@ def test_a_full_disk_is_one_line_and_leaves_no_partial_file(tmp_path):
     assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
     assert "x.mcap" in p.stderr and "too large" in p.stderr.lower()
     assert not out.exists() and not list(tmp_path.glob(".adf-*"))  # nor a temporary file
+
+
+def test_a_logged_camera_model_is_read_as_strictly_as_a_camera_file(sim, tmp_path):
+    """The model inside a log went through the lenient ``Camera.from_dict``: a width of
+    1024.5 became 1024. It is read as a camera file is (issue 33, item 8)."""
+    good = _read(sim).camera_model()
+    bad = copy_log(sim, tmp_path / "bad.mcap", camera={**good, "width": good["width"] + 0.5})
+    with pytest.raises(ValueError, match=r"camera model \(camera\.json\) is unusable: "
+                                         r"camera\.json: width: .* is not an integer"):
+        replay(bad, tmp_path / "out.mcap", progress=False)

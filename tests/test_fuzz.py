@@ -206,3 +206,47 @@ def test_a_lost_in_space_fix_explaining_few_detections_yields_to_the_rest():
     sol30 = solver.solve(np.ascontiguousarray(dets[:30]))
     assert sol30.ok and "two attitudes" in sol30.note
     assert np.degrees(rot.angle_between(sol30.q_cam_icrs, q)) < 0.05
+
+
+@pytest.fixture(scope="module")
+def streams(tmp_path_factory):
+    from adfusion.app import fuzz_streams
+
+    return fuzz_streams.StreamCorpus(tmp_path_factory.mktemp("streams"), duration_s=2.0)
+
+
+@fuzz_settings(10)
+@given(seed=st.integers(0, 2**32 - 1),
+       fault=st.sampled_from(["stop", "pause", "ms", "offset", "repeat", "nan"]))
+def test_gyro_stream_faults_are_reported_never_wrong(streams, seed, fault):
+    """Issue 33's stream faults (the long run adds forward clock jumps): every estimate
+    within max(10σ, 0.2°) of the truth, and a silent gyro said so."""
+    from adfusion.app import fuzz_streams
+
+    _, a, b = fuzz_streams.random_case(random.Random(seed), streams.duration_s, fault)
+    assert fuzz_streams.check_streams(streams, fault, a, b) in ("ok", "reported")
+
+
+@fuzz_settings(5)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_two_writers_of_one_output_leave_one_whole_log(tmp_path_factory, seed):
+    from adfusion.app import fuzz_streams
+
+    assert fuzz_streams.check_writers(tmp_path_factory.mktemp("w"), seed) == "ok"
+
+
+def test_stream_fuzz_has_teeth(streams):
+    """Held at its last sample for ever (the old estimator), a gyro that stops is the
+    wrong attitude the check exists to catch."""
+    from adfusion.app import fuzz_streams
+    from adfusion.estimation.estimator import Estimator
+
+    assert fuzz_streams.check_streams(streams, "stop", 0.5, 0.0) == "reported"
+    defaults = Estimator.__init__.__kwdefaults__
+    old = defaults["gyro_max_age_s"]
+    defaults["gyro_max_age_s"] = float("inf")
+    try:
+        with pytest.raises(fuzz.FuzzViolation, match=r"wrong-attitude|silent-loss"):
+            fuzz_streams.check_streams(streams, "stop", 0.5, 0.0)
+    finally:
+        defaults["gyro_max_age_s"] = old

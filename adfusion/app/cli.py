@@ -84,7 +84,9 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                         "of sky (default: 30, applied when the catalogue holds more)")
     s.add_argument("--epoch", type=finite_float, default=None,
                    help="observation epoch, Julian year (default: now)")
-    s.add_argument("--method", choices=["nstar", "triad", "bleif"], default="nstar")
+    s.add_argument("--method", choices=["nstar", "triad", "bleif"], default="nstar",
+                   help="lost-in-space method: Renken's n-star patterns, Yee's triads, or "
+                        "Bleif's reference-star matcher (default nstar)")
     s.add_argument("--sigma", type=positive_float, default=5.0,
                    help="detection threshold, sigmas")
     s.add_argument("--overlay", metavar="PNG", type=image_path,
@@ -99,7 +101,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_solve)
 
     ca = sub.add_parser("cache", help="the on-disk cache of catalogues and pattern indexes")
-    ca.add_argument("action", choices=["info", "clear"])
+    ca.add_argument("action", choices=["info", "clear"],
+                    help="info: where the cache is and what it holds; clear: empty it")
     ca.add_argument("--kind", help="clear only entries of this kind (e.g. pattern-index)")
     ca.add_argument("--json", action="store_true", help="print JSON instead of text")
     ca.set_defaults(func=cmd_cache)
@@ -129,11 +132,13 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     sm = sub.add_parser("simulate", help="simulate a flight into an MCAP log (oedipus, leo, "
                         "leo3: three star-tracker heads 90° apart, tubsat: Bleif's night "
                         "pass to Berlin)")
-    sm.add_argument("scenario", choices=["oedipus", "leo", "leo3", "tubsat"])
+    sm.add_argument("scenario", choices=["oedipus", "leo", "leo3", "tubsat"],
+                    help="the flight to simulate (see above)")
     sm.add_argument("-o", "--output", required=True, help="output .mcap")
     sm.add_argument("--duration", type=positive_float, default=60.0,
                     help="seconds (default 60)")
-    sm.add_argument("--seed", type=int, default=0)
+    sm.add_argument("--seed", type=int, default=0,
+                    help="seed of every noise source (default 0)")
     sm.add_argument("--no-render", action="store_true",
                     help="write star centroids instead of rendered images (fast)")
     sm.add_argument("--ros2", metavar="DIR", help="also write the flight as a ROS 2 bag "
@@ -264,7 +269,71 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     c = sub.add_parser("catalog", help="star counts of the built-in catalogues per magnitude")
     c.add_argument("--json", action="store_true", help="print JSON instead of a table")
     c.set_defaults(func=cmd_catalog)
+    _say_defaults(p)
     return p
+
+
+def _say_defaults(parser: argparse.ArgumentParser) -> None:
+    """Every option's help ends with its default when it has one the help does not name
+    already (the command line says everything it knows)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _say_defaults(sub)
+        elif (action.option_strings and action.help and action.help != argparse.SUPPRESS
+              and action.default not in (None, False, True, argparse.SUPPRESS)
+              and "default" not in action.help and "%(default)" not in action.help):
+            action.help += " (default: %(default)s)"
+
+
+class _PipeGuard:
+    """Standard output that a closed pipe cannot turn into an exit status: ``adfusion solve
+    BAD | head -1`` exited 0, because the write that met the closed pipe ended the command
+    before its own status. Once the reader has gone, the rest of the output goes to
+    ``/dev/null`` (the reader asked for no more of it) and the command ends as it would
+    have: 0, 1 or 2."""
+
+    def __init__(self, stream) -> None:
+        self._stream = stream
+        self.broken = False
+
+    @classmethod
+    def install(cls) -> None:
+        import stat
+
+        out = sys.stdout
+        if isinstance(out, cls):
+            return
+        try:
+            if not stat.S_ISFIFO(os.fstat(out.fileno()).st_mode):
+                return  # a terminal, a file, a test's capture: nothing to guard
+        except (AttributeError, OSError, ValueError):
+            return
+        sys.stdout = cls(out)
+
+    def write(self, text: str) -> int:
+        if not self.broken:
+            try:
+                return self._stream.write(text)
+            except BrokenPipeError:
+                self._to_devnull()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.broken:
+            try:
+                self._stream.flush()
+            except BrokenPipeError:
+                self._to_devnull()
+
+    def _to_devnull(self) -> None:
+        self.broken = True
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, self._stream.fileno())  # Python's own flush at exit finds no pipe
+        os.close(null)
+
+    def __getattr__(self, name: str):
+        return getattr(self._stream, name)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -276,6 +345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as e:  # --help (0) or a usage error (2), already printed by argparse
         return e.code if isinstance(e.code, int) else 2
     one_line_warnings(f"adfusion {args.command}")
+    _PipeGuard.install()
     # One handler for every command: a failure is one line on stderr and an exit code —
     # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
     try:
@@ -285,9 +355,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # is being written by another run
         print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
         return 2
-    except BrokenPipeError:  # output piped into `head`: not an error
-        sys.stderr.close()
-        return 0
+    except BrokenPipeError:  # a write past the guard (not through sys.stdout) met the
+        return 0  # closed pipe: the reader asked for no more
     except KeyboardInterrupt:
         print(f"adfusion {args.command}: interrupted", file=sys.stderr)
         return 130

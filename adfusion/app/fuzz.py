@@ -31,16 +31,12 @@ from typing import Any
 
 import numpy as np
 
+from adfusion.app.fuzz_violation import FuzzViolation
+
 __all__ = ["FuzzViolation", "ReaderCorpus", "SolverBank", "check_cli", "check_reader",
            "check_solver", "check_sources", "cli_argv", "run"]
 
 
-class FuzzViolation(AssertionError):
-    """A broken promise: ``kind`` (traceback, silent-loss, wrong-attitude, cli) and what."""
-
-    def __init__(self, kind: str, detail: str) -> None:
-        super().__init__(f"{kind}: {detail}")
-        self.kind = kind
 
 
 # --------------------------------------------------------------------------- MCAP reader
@@ -445,7 +441,10 @@ def run(minutes: float, seed: int = 1, folder: str | os.PathLike[str] | None = N
     work = Path(folder or tempfile.mkdtemp(prefix="adfusion-fuzz-"))
     work.mkdir(parents=True, exist_ok=True)
     (work / "out").mkdir(exist_ok=True)
+    from adfusion.app import fuzz_streams
+
     reader_corpus = {c: ReaderCorpus(work, compression=c) for c in ("zstd", "none")}
+    streams = fuzz_streams.StreamCorpus(work / "streams")
     bank = SolverBank()
     corpus = cli_corpus(work / "cli", reader_corpus["zstd"])
     r = random.Random(seed)
@@ -456,8 +455,8 @@ def run(minutes: float, seed: int = 1, folder: str | os.PathLike[str] | None = N
     k = 0
     while time.monotonic() < deadline:
         k += 1
-        family = ("reader", "solver", "sources", "cli")[k % 4]
-        if family == "cli" and r.random() > cli_share * 4:
+        family = ("reader", "solver", "sources", "cli", "streams", "writers")[k % 6]
+        if family == "cli" and r.random() > cli_share * 6:
             family = "reader"
         try:
             if family == "reader":
@@ -479,6 +478,11 @@ def run(minutes: float, seed: int = 1, folder: str | os.PathLike[str] | None = N
                     r.choice([0.05, 0.5, 3.0]))
             elif family == "sources":
                 outcome = check_sources(work, r.randrange(2**32))
+            elif family == "streams":
+                outcome = fuzz_streams.check_streams(
+                    streams, *fuzz_streams.random_case(r, streams.duration_s))
+            elif family == "writers":
+                outcome = fuzz_streams.check_writers(work / "out", r.randrange(2**32))
             else:
                 outcome = check_cli(cli_argv(r, corpus, str(work / "out")))
         except FuzzViolation as v:

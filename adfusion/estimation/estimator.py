@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from adfusion.estimation.gyro_outage import GyroOutage
 from adfusion.estimation.mekf import MEKF
 from adfusion.maths import rotations as rot
 from adfusion.starid.solver import Prior, Solution, Solver
@@ -117,6 +118,22 @@ class Estimator:
             than this × the time between them (plus 8 noise σ from ``arw_rad_sqrt_s``) is
             refused as a glitch. One 100 rad/s sample of 5 ms otherwise turns the estimate
             28° and the gate then rejects every correct fix.
+        gyro_max_age_s: a gyro sample older than this ends the gyro's authority: the
+            estimator propagates as without a gyro (:mod:`adfusion.estimation.gyro_outage`:
+            a rate filter whose rate starts at the last sample, 1σ
+            ``sigma_rate_outage_rad_s``, and walks at ``rate_walk_rad_s_sqrt_s``), never on
+            the held rate, until samples come again. Default (None): with
+            ``gyro_stream``, 5 sample intervals of the gyro's own (the median of its last
+            16), at most 1 s; without, ``inf`` (each sample holds until the next). Each
+            outage is in :attr:`gyro_outages`.
+        sigma_rate_outage_rad_s: the rate's 1σ when an outage begins (rad/s).
+        gyro_stream: the gyro samples are a logged sensor stream (a replay), not a
+            caller's zero-order hold: a sample is trusted for ``gyro_max_age_s`` only, and
+            a filter started before the stream's first sample runs without the gyro until
+            it comes (a stream that starts late would otherwise hold the attitude still
+            with a gyro's confidence). False (default): each sample holds until the next,
+            however long (a commanded rate, a slew plan), and with no sample yet the
+            attitude is held, its covariance grown by the filter's own model.
         reinit_after_fixes: that many lost-in-space fixes in a row, each rejected by the
             gate and agreeing with the one before on the filter's error (within
             ``reinit_agree_deg``), restart the filter from the last of them (recorded as
@@ -149,9 +166,15 @@ class Estimator:
         gyro_max_accel_rad_s2: float = 100.0,
         reinit_after_fixes: int = 3,
         reinit_agree_deg: float = 1.0,
+        gyro_max_age_s: float | None = None,
+        sigma_rate_outage_rad_s: float = 0.02,
+        gyro_stream: bool = False,
     ) -> None:
         for name, value in (("gyro_max_rate_rad_s", gyro_max_rate_rad_s),
                             ("gyro_max_accel_rad_s2", gyro_max_accel_rad_s2),
+                            ("gyro_max_age_s", 1.0 if gyro_max_age_s is None
+                             else gyro_max_age_s),
+                            ("sigma_rate_outage_rad_s", sigma_rate_outage_rad_s),
                             ("reinit_agree_deg", reinit_agree_deg)):
             if not value > 0:  # inf allowed: no check
                 raise ValueError(f"{name} must be > 0, got {value}")
@@ -163,6 +186,15 @@ class Estimator:
         self.reinit_after = int(reinit_after_fixes)
         self.reinit_agree_rad = float(np.radians(reinit_agree_deg))
         self._gyro_last: tuple[float, NDArray[np.float64]] | None = None  # (t, ω) accepted
+        self._max_age_s = None if gyro_max_age_s is None else float(gyro_max_age_s)
+        self._gyro_dts: list[float] = []  # the last sample intervals (for the default age)
+        self.sigma_rate_outage = float(sigma_rate_outage_rad_s)
+        self._outage: GyroOutage | None = None  # while the gyro is silent
+        self._gyro_note = ""  # the end of an outage, for the step's record
+        self._first_wait = False  # the outage is the wait for the gyro's first sample
+        self.gyro_stream = bool(gyro_stream)
+        #: every gyro outage: (start, end) run seconds, end NaN while it lasts
+        self.gyro_outages: list[list[float]] = []
         self._lis_rejects: list[NDArray[np.float64]] = []  # fix ⊗ filter⁻¹ of rejected fixes
         if exposure_s is not None and not (np.isfinite(exposure_s) and exposure_s >= 0):
             raise ValueError(f"exposure_s must be a finite duration ≥ 0, got {exposure_s}")
@@ -225,10 +257,24 @@ class Estimator:
         self._active = k
 
     def _make_filter(self, q_body_icrs: NDArray, sigma_att_rad: float):
-        if self.video_only:
+        if self._outage is not None:  # restarted while the gyro is silent: a rate filter
             from adfusion.estimation.ratefilter import RateMEKF
 
-            return RateMEKF(q_body_icrs, sigma_att_rad, self.sigma_rate0, self.rate_walk)
+            self._outage.filter = RateMEKF(q_body_icrs, sigma_att_rad, self.sigma_rate0,
+                                           self.rate_walk,
+                                           omega0_rad_s=self._outage.filter.omega_rad_s)
+            return self._outage.filter
+        if self.video_only or (self.gyro_stream and self._gyro_last is None):
+            from adfusion.estimation.ratefilter import RateMEKF
+
+            rate = RateMEKF(q_body_icrs, sigma_att_rad, self.sigma_rate0, self.rate_walk)
+            if not self.video_only:  # no gyro sample yet: without the gyro until one comes
+                t = math.nan if getattr(self, "t", None) is None else self.t
+                self._outage = GyroOutage(rate, np.zeros(3), np.eye(3) * self.sigma_bias0**2,
+                                          t_start_s=t)
+                self.gyro_outages.append([t, math.nan])
+                self._first_wait = True
+            return rate
         return self.filter_factory(q_body_icrs, sigma_att_rad, self.sigma_bias0, self.arw,
                                    self.rrw)
 
@@ -283,6 +329,9 @@ class Estimator:
                 rec.rejected.append(("gyro", refused))
             else:
                 rec.sensors.append("gyro")
+            if self._gyro_note:
+                rec.rejected.append(("gyro", self._gyro_note))
+                self._gyro_note = ""
         if frame is not None or detections is not None:
             self._use_camera(camera)
             try:
@@ -384,8 +433,13 @@ class Estimator:
         glitch = self._gyro_glitch(t, x, y, z)
         if glitch:
             return glitch
+        if self._gyro_last is not None and self._outage is None and t > self._gyro_last[0]:
+            self._gyro_dts.append(t - self._gyro_last[0])
+            del self._gyro_dts[:-16]
         self._omega_hold = g
         self._gyro_last = (t, g)
+        if self._outage is not None:
+            self._gyro_note = self._end_outage(t)
         return ""
 
     def _gyro_glitch(self, t: float, x: float, y: float, z: float) -> str:
@@ -411,13 +465,67 @@ class Estimator:
                     f"gyro_max_accel_rad_s2 = {self.gyro_max_accel:g} allows); sample ignored")
         return ""
 
+    @property
+    def gyro_max_age_s(self) -> float:
+        """The age (s) past which a gyro sample no longer propagates the filter: the one
+        given, or for a ``gyro_stream`` 5 of its sample intervals (median of the last 16),
+        at most 1 s (else ``inf``)."""
+        if self._max_age_s is not None:
+            return self._max_age_s
+        if not self.gyro_stream:
+            return math.inf
+        if not self._gyro_dts:
+            return 1.0
+        return min(5.0 * float(np.median(self._gyro_dts)), 1.0)
+
+    @property
+    def without_gyro(self) -> bool:
+        """Whether the filter runs on its own rate estimate: a video-only estimator, or a
+        gyro outage (:attr:`gyro_max_age_s`)."""
+        return self.video_only or self._outage is not None
+
     def _propagate_to(self, t: float, rec: StepRecord | None) -> None:
         if self.t is not None and self.filter is not None and t > self.t:
-            if self._omega_hold is not None and not self.video_only:
+            if self._outage is None and self._gyro_last is not None and not self.video_only:
+                # the held sample is good until it is gyro_max_age_s old, then the outage
+                t_stale = self._gyro_last[0] + self.gyro_max_age_s
+                if t > t_stale:
+                    if t_stale > self.t:
+                        self.filter.propagate(t_stale - self.t, self._omega_hold)
+                        self.t = t_stale
+                    self._begin_outage(max(self.t, t_stale), rec)
+            if self._omega_hold is not None and not self.without_gyro:
                 self.filter.propagate(t - self.t, self._omega_hold)
-            else:  # video-only: the rate filter uses its own rate; else hold the attitude
+            elif t > self.t:  # without a gyro the rate filter uses its own rate; with none
+                # ever seen, the gyro filter holds the attitude
                 self.filter.propagate(t - self.t, self.filter.bias_rad_s)
         self.t = t
+
+    def _begin_outage(self, t: float, rec: StepRecord | None) -> None:
+        t_last, omega = self._gyro_last
+        self._outage = GyroOutage.begin(self.filter, omega, self.sigma_rate_outage,
+                                        self.rate_walk, t_start_s=t)
+        self.filter = self._outage.filter
+        self.gyro_outages.append([t, math.nan])
+        if rec is not None:
+            rec.rejected.append(("gyro", f"no sample since t = {t_last:.6g} s (more than "
+                                         f"gyro_max_age_s = {self.gyro_max_age_s:g} s): "
+                                         "propagating without the gyro"))
+
+    def _end_outage(self, t: float) -> str:
+        self.filter = self._outage.end(self.filter_factory, arw_rad_sqrt_s=self.arw,
+                                       rrw_rad_s_sqrt_s=self.rrw)
+        self.gyro_outages[-1][1] = t
+        self._outage = None
+        start = self.gyro_outages[-1][0]
+        if self._first_wait:  # the filter started before the gyro's first sample
+            self._first_wait = False
+            if not t - start > self.gyro_max_age_s:  # (as a stream starts: nothing to say)
+                self.gyro_outages.pop()
+                return ""
+            return f"first sample {t - start:.6g} s after the filter started: the gyro " \
+                   "filter takes over"
+        return f"samples again after {t - start:.6g} s without: the gyro filter resumes"
 
     def _star_update(self, frame, detections, rec: StepRecord,
                      exposure_s: float | None = None) -> None:
@@ -561,7 +669,7 @@ class Estimator:
         estimate: the gyro's last sample less the bias, or the video-only filter's rate."""
         if not exposure_s or self.filter is None:
             return None
-        if self.video_only:
+        if self.without_gyro:
             omega_body = np.asarray(self.filter.omega_rad_s)  # RateMEKF: its rate state
         elif self._omega_hold is not None:
             omega_body = self._omega_hold - np.asarray(self.filter.bias_rad_s)
@@ -595,4 +703,7 @@ class Estimator:
             rec.q_body_icrs = np.array(self.filter.q_body_icrs)
             rec.bias_rad_s = np.array(self.filter.bias_rad_s)
             rec.sigma_rad = np.sqrt(self.filter.P.diagonal())
+            if self._outage is not None:  # the bias (and its σ) kept for the gyro's return
+                rec.bias_rad_s = self._outage.bias_rad_s.copy()
+                rec.sigma_rad[3:] = np.sqrt(np.diag(self._outage.bias_cov))
         return rec

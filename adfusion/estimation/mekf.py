@@ -387,6 +387,10 @@ class AttitudeFilter:
     def _cov(self) -> Array:
         raise NotImplementedError
 
+    def _set_bias(self, bias_rad_s: ArrayLike) -> None:
+        """Set the bias estimate (a filter resuming after a gyro outage)."""
+        raise NotImplementedError
+
     def _vector_update(
         self, bm: tuple[float, float, float], rr: tuple[float, float, float], sigma: float
     ) -> UpdateResult:
@@ -527,6 +531,9 @@ class MEKF(AttitudeFilter):
 
     def _cov(self) -> Array:
         return self._P
+
+    def _set_bias(self, bias_rad_s: ArrayLike) -> None:
+        self._b = [float(v) for v in np.asarray(bias_rad_s, dtype=np.float64).reshape(3)]
 
     def propagate(self, dt: float, omega_meas_rad_s: ArrayLike) -> None:
         """Advance the state by ``dt`` seconds with one gyro sample (rad/s, body frame).

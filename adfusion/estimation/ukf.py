@@ -193,6 +193,9 @@ class UKF(AttitudeFilter):
     def _cov(self) -> Array:
         return self.filterpy.P
 
+    def _set_bias(self, bias_rad_s: ArrayLike) -> None:
+        self.filterpy.x[3:] = np.asarray(bias_rad_s, dtype=np.float64).reshape(3)
+
     def propagate(self, dt: float, omega_meas_rad_s: ArrayLike) -> None:
         """Advance the state by ``dt`` seconds with one gyro sample (rad/s, body frame).
 

@@ -14,6 +14,14 @@ recently used entries are removed until the rest fit, the new entry last. An ent
 than the whole cap is not kept. :func:`cache_info` lists the entries, :func:`cache_clear`
 removes them (``adfusion cache info`` / ``adfusion cache clear``).
 
+Integrity: each entry holds, beside its arrays, a SHA-256 of them (:func:`arrays_digest`:
+every array's name, dtype, shape and bytes), checked on every load. An entry that does not
+match it (rewritten by a bug or by hand), that cannot be read (a flipped byte, a truncated
+file) or that has no digest (written before digests) is a miss: it is rebuilt and rewritten,
+with one :class:`CacheWarning` naming the file for the damaged ones — never trusted, never an
+exception. A folder that cannot be made or written is an :class:`OSError` naming
+``ADFUSION_CACHE_DIR``.
+
 Example:
     >>> import numpy as np
     >>> from adfusion.starid.catalog.cache import cached_arrays
@@ -29,6 +37,7 @@ import json
 import os
 import tempfile
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,10 +46,17 @@ import numpy as np
 
 from adfusion.plain import json_default
 
-__all__ = ["CacheEntry", "cache_clear", "cache_dir", "cache_info", "cache_key",
-           "cache_limit_bytes", "cached_arrays", "evict", "file_fingerprint", "source_digest"]
+__all__ = ["CacheEntry", "CacheWarning", "arrays_digest", "cache_clear", "cache_dir",
+           "cache_info", "cache_key", "cache_limit_bytes", "cached_arrays", "evict",
+           "file_fingerprint", "source_digest"]
 
 DEFAULT_MAX_MB = 2000.0
+DIGEST_NAME = "__sha256__"  # the member of an entry holding the digest of the others
+
+
+class CacheWarning(UserWarning):
+    """A cache entry was damaged or tampered with and has been rebuilt (or could not be
+    stored): the result is right, the user is told."""
 
 _FINGERPRINTS: dict[tuple[str, int, int], str] = {}
 
@@ -55,8 +71,22 @@ def cache_dir() -> Path | None:
     else:
         xdg = os.environ.get("XDG_CACHE_HOME")
         root = (Path(xdg) if xdg else Path.home() / ".cache") / "adfusion"
-    root.mkdir(parents=True, exist_ok=True)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        if not root.is_dir():
+            raise NotADirectoryError(20, "not a folder")
+    except OSError as exc:
+        raise _dir_error(exc, root, "cannot be created") from None
     return root
+
+
+def _dir_error(exc: OSError, root: Path, what: str) -> OSError:
+    """A one-line error about the cache folder, naming the variable that chooses it."""
+    why = exc.strerror or type(exc).__name__
+    where = (f"ADFUSION_CACHE_DIR={os.environ['ADFUSION_CACHE_DIR']}"
+             if os.environ.get("ADFUSION_CACHE_DIR") else f"the cache folder {root}")
+    return type(exc)(f"{where}: the cache folder {what} ({why}): set ADFUSION_CACHE_DIR to "
+                     "a writable folder, or to off to disable the cache")
 
 
 def file_fingerprint(path: str | os.PathLike[str]) -> str:
@@ -110,6 +140,70 @@ def cache_key(kind: str, params: dict, sources: Iterable[str | os.PathLike[str]]
     return hashlib.sha256(text.encode()).hexdigest()[:32]
 
 
+def arrays_digest(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 (hex) of a set of arrays: each one's name, dtype, shape and bytes, by name.
+
+    >>> arrays_digest({"x": np.arange(3)}) == arrays_digest({"x": np.arange(3)})
+    True
+    >>> arrays_digest({"x": np.arange(3)}) == arrays_digest({"x": np.arange(3) + 1})
+    False
+    """
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}\0{a.dtype.str}\0{a.shape}\0".encode())
+        h.update(a.data)
+    return h.hexdigest()
+
+
+def _read_entry(path: Path) -> tuple[dict[str, np.ndarray] | None, str | None]:
+    """The arrays of an entry, checked against its digest: ``(arrays, None)``; else
+    ``(None, why)`` for a damaged entry, ``(None, None)`` for one without a digest (written
+    before digests: a plain miss) or one gone meanwhile."""
+    try:
+        with path.open("rb") as f, np.load(f, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except FileNotFoundError:  # removed meanwhile (evicted, cleared): a miss
+        return None, None
+    except AttributeError:  # np.load gave a bare array (an .npy), not an archive
+        return None, "not an .npz archive"
+    except Exception as exc:  # any damage: zip, npy header, CRC, EOF, …
+        text = " ".join(str(exc).split()) or "unreadable"
+        return None, f"unreadable: {type(exc).__name__}: {text[:120]}"
+    stored = arrays.pop(DIGEST_NAME, None)
+    if stored is None:
+        return None, None
+    if stored.shape != () or stored.dtype.kind != "U" or str(stored[()]) != arrays_digest(arrays):
+        return None, "its arrays do not match their digest"
+    return arrays, None
+
+
+def _write_entry(root: Path, path: Path, arrays: dict[str, np.ndarray]) -> bool:
+    """Store an entry atomically (a private temporary file renamed over it), with its
+    digest. A folder that cannot be written is an error naming ``ADFUSION_CACHE_DIR``; a
+    write that fails part way (a full disk) is a warning: the result is not cached."""
+    if DIGEST_NAME in arrays:
+        raise ValueError(f"a cached array may not be named {DIGEST_NAME!r}")
+    try:
+        fd, tmp = tempfile.mkstemp(dir=root, suffix=".npz.tmp")
+    except OSError as exc:
+        raise _dir_error(exc, root, "is not writable") from None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays, **{DIGEST_NAME: np.array(arrays_digest(arrays))})
+        os.replace(tmp, path)
+    except OSError as exc:
+        Path(tmp).unlink(missing_ok=True)
+        warnings.warn(CacheWarning(f"cache entry {path} could not be written "
+                                   f"({exc.strerror or exc}): not cached (ADFUSION_CACHE_DIR)"),
+                      stacklevel=3)
+        return False
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return True
+
+
 def cached_arrays(
     kind: str,
     params: dict,
@@ -120,33 +214,31 @@ def cached_arrays(
     """Load the arrays for (kind, params, sources) from the cache, or build and store them.
 
     ``build`` returns a dict of numpy arrays. ``valid``, if given, judges a loaded entry:
-    one it rejects is rebuilt and replaced under the same key. Writes are atomic (temp
-    file + rename), so a crash or two processes racing never leave a half-written entry
-    behind; after a write the cache is trimmed to its cap (:func:`evict`).
+    one it rejects is rebuilt and replaced under the same key. An entry whose arrays do not
+    match its digest, or that cannot be read, is rebuilt and replaced too, with one
+    :class:`CacheWarning` naming it. Writes are atomic (temp file + rename), so a crash or
+    two processes racing never leave a half-written entry behind; after a write the cache
+    is trimmed to its cap (:func:`evict`).
     """
     root = cache_dir()
     if root is None:
         return build()
     path = root / f"{kind}-{cache_key(kind, params, sources)}.npz"
+    damaged = None
     if path.exists():
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                arrays = {k: z[k] for k in z.files}
-            if valid is None or valid(arrays):
-                _touch(path)
-                return arrays
-        except (OSError, ValueError, EOFError):
-            path.unlink(missing_ok=True)  # corrupt entry: rebuild below
+        arrays, damaged = _read_entry(path)
+        if arrays is not None and (valid is None or valid(arrays)):
+            _touch(path)
+            return arrays
     arrays = build()
-    fd, tmp = tempfile.mkstemp(dir=root, suffix=".npz.tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, path)
-    except OSError:
-        Path(tmp).unlink(missing_ok=True)
-    else:
+    if _write_entry(root, path, arrays):
+        if damaged is not None:
+            warnings.warn(CacheWarning(f"cache entry {path} was damaged ({damaged}): rebuilt"),
+                          stacklevel=2)
         evict(keep=path)
+    elif damaged is not None:
+        warnings.warn(CacheWarning(f"cache entry {path} was damaged ({damaged}): rebuilt, "
+                                   "but not stored"), stacklevel=2)
     return arrays
 
 

@@ -4,11 +4,11 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
+
+from adfusion.imagefiles import read_frame_file
 
 __all__ = ["read_image"]
 
@@ -19,35 +19,25 @@ _NATIVE_INT = (np.uint8, np.uint16)
 
 
 def read_image(path: str | os.PathLike[str]) -> np.ndarray:
-    """Read an image file as a 2-D grey array, keeping its bit depth (8/16-bit, float TIFF).
+    """Read an image file as a 2-D grey array, keeping its bit depth (8/16-bit, float TIFF,
+    FITS).
 
-    Colour files are converted to grey (OpenCV's BGR order is known for files). Raises
-    FileNotFoundError for a missing file and ValueError when OpenCV cannot decode it.
+    Colour files are converted to grey (OpenCV's BGR order is known for files). The file
+    is read by :func:`adfusion.imagefiles.read_frame_file`, the project's one frame
+    reader: names of any bytes, a pixel cap (``ADFUSION_MAX_IMAGE_PIXELS``) checked on the
+    header before decoding, truncated files refused. Raises FileNotFoundError for a
+    missing file and ValueError (one line naming the file) when it cannot be used.
 
     Example:
         >>> import tempfile
+        >>> from pathlib import Path
+        >>> import cv2
         >>> p = Path(tempfile.mkdtemp()) / "f.png"
         >>> _ = cv2.imwrite(str(p), np.full((4, 6), 1000, np.uint16))
         >>> a = read_image(p); a.shape, a.dtype.name, int(a[0, 0])
         ((4, 6), 'uint16', 1000)
     """
-    p = Path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"image file not found: {str(p)!r}")
-    if not p.is_file():
-        raise ValueError(f"image path is not a file: {str(p)!r}")
-    img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED | cv2.IMREAD_ANYDEPTH)
-    if img is None:
-        raise ValueError(f"cannot read image file {str(p)!r}: OpenCV could not decode it")
-    if img.ndim == 3:
-        codes = {3: cv2.COLOR_BGR2GRAY, 4: cv2.COLOR_BGRA2GRAY}
-        if img.shape[2] == 1:
-            img = img[:, :, 0]
-        elif img.shape[2] in codes:
-            img = cv2.cvtColor(img, codes[img.shape[2]])
-        else:
-            raise ValueError(f"image file {str(p)!r} has {img.shape[2]} channels")
-    return img
+    return read_frame_file(path)
 
 
 def _as_grey(image: Any) -> np.ndarray:

@@ -104,6 +104,7 @@ _LEAN_KEEPS = frozenset({"_lean", "_frame_camera_kept", "_triangles_done"})
 #: the focal-length grid's step when the field of view is searched (1 %: the pair windows
 #: widen by half a step × the pair's distance)
 SCALE_STEP = 0.01
+NO_MATCH_P_FALSE = 0.01  # a best candidate this likely by chance: "no match", not weak
 
 
 def focal_scales(camera: Camera, fov_error_deg: float, fov_range_deg: Any) -> list[float]:
@@ -266,10 +267,6 @@ class PatternSearch:
             self._weak_verified(np.ascontiguousarray(pxy[:3]), self.camera,
                                 [(1.0, np.arange(3), idx[:3], "", 0, 1)])
 
-    def _patterns(self, n_det: int) -> Iterator[tuple[tuple[int, ...], str]]:
-        """Every pattern in the order tried (:func:`search_order.patterns`)."""
-        return search_order.patterns(n_det, self.n_min, self.n_max)
-
     def _pattern_list(self, n_det: int, full: bool,
                       ) -> tuple[NDArray[np.int64], NDArray[np.int64], list[str]]:
         """The patterns for :func:`kernels.search` (:func:`search_order.pattern_arrays`)."""
@@ -341,8 +338,11 @@ class PatternSearch:
                                     trial)[0]
                     if (c := self.verifier.verify(xy, cams[ci], sel, a, q, b_cams[ci])) is not None:
                         shown.append(c)
-            reason = (f"ambiguous: weak evidence, the best candidate has p_false "
-                      f"{best[0][0]:.2g} > {self.p_false_max:.0e} ({tried} patterns tried)")
+            # chance alone explains the best one (p_false near 1): nothing matched
+            kind = ("no match:" if best[0][0] >= NO_MATCH_P_FALSE
+                    else "ambiguous: weak evidence,")
+            reason = (f"{kind} the best candidate has p_false {best[0][0]:.2g} > "
+                      f"{self.p_false_max:.0e} ({tried} patterns tried)")
             return Solution(False, reason, matching_counter=run.first_counter or 0,
                             path=best[0][3],
                             candidates=distinct_candidates(shown, 3 * self.tolerance_rad))
@@ -766,7 +766,7 @@ class PatternSearch:
         # one of its own), so it is counted as tried but not matched — the swaps and
         # 4-star combinations after a failed Not-Modus are mostly such supersets
         no_match: list[list[int]] = [[] for _ in cams]
-        for pat_idx, path in self._patterns(len(xy)):
+        for pat_idx, path in search_order.patterns(len(xy), self.n_min, self.n_max):
             if run.tried >= budget:
                 run.budget_note = f"{run.tried} pattern trials (the budget)"
                 return

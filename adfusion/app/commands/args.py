@@ -77,6 +77,23 @@ def _output_file(path: str, flag: str = "-o") -> None:
         raise UsageError(f"{flag} {path}: the folder {parent} does not exist")
 
 
+def fov_error_fits(fov_error_deg: float | None, camera) -> None:
+    """``--fov-error`` must stay below the camera's field of view (the solver's bound,
+    said in the flag's words): a usage error naming the flag and the fix.
+
+    >>> from adfusion.starid.camera.model import Camera
+    >>> try:
+    ...     fov_error_fits(6.0, Camera.pinhole(64, 48, 5.7))
+    ... except UsageError as e:
+    ...     print(str(e).split(";")[0])
+    --fov-error 6: must be below the camera's 5.7° field of view
+    """
+    if fov_error_deg and not fov_error_deg < camera.fov_x_deg:
+        raise UsageError(f"--fov-error {fov_error_deg:g}: must be below the camera's "
+                         f"{camera.fov_x_deg:.3g}° field of view; for a field of view known "
+                         "only roughly give its range, --fov LO:HI")
+
+
 def _outputs_apart(outputs: list[tuple[str, str]], inputs: list) -> None:
     """Outputs never overwrite inputs, nor each other (:func:`adfusion.outfiles.refuse_overwrite`,
     the one guard of every command: same file by inode, else by resolved name); a usage
@@ -212,7 +229,8 @@ def _fov_nominal(fov: tuple[float, float]) -> float:
     return math.sqrt(fov[0] * fov[1])
 
 
-_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm"}
+_IMAGE_SUFFIXES = {".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm", ".fits",
+                   ".webp"}
 
 
 def _image_paths(items: Sequence[str]) -> list:

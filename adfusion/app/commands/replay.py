@@ -19,9 +19,41 @@ from adfusion.app.commands.solve import _FOV_TOLERANCE
 from adfusion.app.errors import UsageError
 
 
+def _missing_inputs(args: argparse.Namespace) -> None:
+    """Everything a folder of frames (or a video) lacks, said at once: a folder replay
+    took three failed tries, each naming one missing flag (new-user trial)."""
+    import os
+
+    from adfusion.app.replay.sources import VIDEO_SUFFIXES, is_ros2_bag
+
+    path = args.input
+    folder = os.path.isdir(path) and not is_ros2_bag(path)
+    video = os.path.isfile(path) and path.lower().endswith(tuple(VIDEO_SUFFIXES))
+    if not (folder or video):
+        return  # a log or a bag carries its times, camera and configuration
+    for flag, file in (("--imu", args.imu), ("--camera", args.camera),
+                       ("--timestamps", args.timestamps), ("--config", args.config)):
+        if file and not os.path.exists(file):  # a file named but absent, before what it
+            raise FileNotFoundError(f"{flag} {file}: no such file")  # would have given
+    missing = []
+    if folder and not (args.fps or args.timestamps):
+        missing.append("the frames' times: give --fps HZ or --timestamps CSV (filename,t_s)")
+    if not (args.camera or args.fov):
+        missing.append("the lens: give --camera FILE or --fov DEG (LO:HI when known roughly)")
+    if args.imu and not (args.mount or args.config or args.assume_defaults):
+        missing.append("how the camera sits on the IMU's body and the gyro's noise: give --mount "
+                       "w,x,y,z, --config FILE.json or --assume-defaults")
+    if missing:
+        later = ("" if args.start_utc else "; and for `adfusion export` later, --start-utc "
+                 "TIME (the UTC of t = 0)")
+        raise UsageError(f"{path}: a {'folder of frames' if folder else 'video'} needs "
+                         + "; ".join(missing) + later)
+
+
 def cmd_replay(args: argparse.Namespace) -> int:
     from adfusion.app.replay import ReplayOptions, replay
 
+    _missing_inputs(args)
     _camera_or_fov(args)
     camera = None
     if args.camera:

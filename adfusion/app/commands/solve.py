@@ -16,6 +16,7 @@ from adfusion.app.commands.args import (
     _output_file,
     _output_folder,
     _outputs_apart,
+    fov_error_fits,
     parse_fov,
 )
 from adfusion.app.errors import UsageError
@@ -35,9 +36,9 @@ class _Solvers:
         self.camera_file = None
         self.fov = parse_fov(args.fov) if args.fov is not None else None
         if getattr(args, "camera", None):
-            from adfusion.starid.camera.files import read_camera_yaml
+            from adfusion.app.camera_file import load_camera  # the one loader (replay's too)
 
-            self.camera_file = read_camera_yaml(args.camera)
+            self.camera_file = load_camera(args.camera)
         elif args.fov is None:
             raise UsageError("--fov (horizontal field of view estimate, degrees) or --camera "
                              "(a camera YAML) is required")
@@ -72,6 +73,7 @@ class _Solvers:
                     raise UsageError("give --fov LO:HI or --fov-error, not both")
                 kw = {"fov_range_deg": self.fov}
             else:
+                fov_error_fits(a.fov_error, camera)
                 kw = {"fov_error_deg": a.fov_error}
             solver = starid.Solver(cat, camera, method=a.method, **kw)
             if a.method == "nstar":

@@ -134,7 +134,17 @@ class Run:
         if found is None:
             one = self.source.problem
             found = [] if one is None else [one]
-        return list(found) + self.problems.lines()
+        return list(found) + self.problems.lines() + self._outage_lines()
+
+    def _outage_lines(self) -> list[str]:
+        """Each time the gyro fell silent past its age limit (the estimator's
+        ``gyro_outages``): the filter propagated without it meanwhile."""
+        out = []
+        for start, end in getattr(self.estimator, "gyro_outages", []):
+            until = "the end of the run" if end != end else f"{end:.6g} s ({end - start:.3g} s)"
+            out.append(f"gyro silent from {start:.6g} s to {until}: the filter propagated "
+                       "without it meanwhile (its rate estimated from the star fixes)")
+        return out
 
     @property
     def replay_metadata(self) -> dict[str, Any]:
@@ -248,6 +258,10 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
         # `adfusion acs`'s tracking windows at ~0.03 px) carries its own accuracy
         sigma_px = max(sigma_px, 0.5)
     extra = {"fov_error_deg": options.fov_error_deg} if options.fov_error_deg else {}
+    if extra:
+        from adfusion.app.commands.args import fov_error_fits
+
+        fov_error_fits(options.fov_error_deg, camera)  # in the flag's words
     solver = Solver(catalog, camera, centroid_sigma_px=sigma_px, **extra)
     solver.warm_up()  # its compiled search loads (or, once after an install, compiles) here
     # and the tracking path: the first tracked frame's solve time was the kernels' loading
@@ -266,7 +280,8 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
            else _number(gyro_cfg, "rrw_rad_s_sqrt_s", 1e-6, "config.gyro.", name))
     est = Estimator(solver, q_body_cam, arw_rad_sqrt_s=float(arw), rrw_rad_s_sqrt_s=float(rrw),
                     video_only=not options.use_gyro, detect=ahead,
-                    exposure_s=None if exposure is None else float(exposure))
+                    exposure_s=None if exposure is None else float(exposure),
+                    gyro_stream=options.use_gyro)
     r = Run(source, camera, model, config, q_body_cam, limit, solver, est, options, start,
             assumptions=assumed)
     r.heads = [Head(0, camera, q_body_cam, solver)]
@@ -278,7 +293,7 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
         models = source.camera_models()
         r.heads = []
         for k in selected:
-            cam_k = Camera.from_dict(models[k])
+            cam_k = _logged_camera(models[k], source.name, k)
             q_k = np.asarray(config["heads"][k]["q_body_cam"], dtype=np.float64)
             solver_k = (solver if k == 0 and cam_k == camera else
                         Solver(catalog, cam_k, centroid_sigma_px=sigma_px, **extra))
@@ -288,12 +303,27 @@ def _build(source: Source, options: ReplayOptions, ahead: DetectAhead) -> Run:
                                                              first.q_body_cam, first.solver)
         est = Estimator(first.solver, first.q_body_cam, arw_rad_sqrt_s=float(arw),
                         rrw_rad_s_sqrt_s=float(rrw), video_only=not options.use_gyro,
-                        detect=ahead, exposure_s=None if exposure is None else float(exposure))
+                        detect=ahead, exposure_s=None if exposure is None else float(exposure),
+                        gyro_stream=options.use_gyro)
         for h in r.heads[1:]:
             est.add_camera(h.solver, h.q_body_cam)
         r.estimator = est
         ahead.cameras = {topics.camera_topic(h.index): h.camera for h in r.heads}
     return r
+
+
+def _logged_camera(model: Any, name: str, k: int) -> Camera:
+    """Camera ``k``'s model as the input holds it (``camera.json``, ``camera1.json`` …),
+    read as strictly as a camera file (:func:`adfusion.starid.camera.files.camera_from_mapping`)."""
+    from adfusion.starid.camera.files import camera_from_mapping
+
+    what = "camera.json" if k == 0 else f"camera{k}.json"
+    if not isinstance(model, dict):
+        raise ValueError(f"{name}: the camera model ({what}) is unusable: not an object")
+    try:
+        return camera_from_mapping(model, what)
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise ValueError(f"{name}: the camera model ({what}) is unusable: {exc}") from None
 
 
 def _camera(source: Source, options: ReplayOptions) -> Camera:
@@ -302,11 +332,7 @@ def _camera(source: Source, options: ReplayOptions) -> Camera:
     if options.camera is not None:
         camera = options.camera
     elif (model := source.camera_model()) is not None:
-        try:
-            camera = Camera.from_dict(model)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise ValueError(f"{source.name}: the camera model (camera.json) is unusable: "
-                             f"{type(exc).__name__}: {exc}") from None
+        camera = _logged_camera(model, source.name, 0)
     elif options.fov_deg is not None:
         size = source.image_size()
         if size is None:
@@ -458,6 +484,8 @@ def replay(
     ahead.start()
     try:
         source = open_input(in_path, **input_args)
+        if hasattr(source, "preflight"):  # the IMU file's clock against the frames', first
+            source.preflight()
         if not getattr(source, "has_gyro", True) and options.use_gyro:
             options.use_gyro = False  # nothing to propagate with: the rate filter (video only)
         summary = ReplaySummary()

@@ -42,6 +42,8 @@ from adfusion.starid.solver import Solver
 if TYPE_CHECKING:
     from adfusion.app.replay.run import Run
 
+_STREAMS = (FRAME, GYRO, MAG)  # the inputs whose coverage a summary reports
+
 __all__ = [
     "InViewCounter",
     "LayoutSink",
@@ -95,6 +97,10 @@ class ReplaySummary:
     smoothed_errors_deg: list[float] = field(default_factory=list)
     smoothed_sigmas_deg: list[float] = field(default_factory=list)
     smoother: dict[str, Any] = field(default_factory=dict)  # replay(smooth=True) only
+    # kind ("frame", "gyro", "mag") → messages, used, first_s, last_s: how much of each
+    # stream the run had and used
+    streams: dict[str, dict[str, float]] = field(default_factory=dict)
+    frames_without_gyro: int = 0  # frames met during a gyro outage (gyro_max_age_s)
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -158,6 +164,15 @@ class ReplaySummary:
                      if self.setup_s > 2.0 else "")
             lines.append(f"{d['frames_per_s']:.1f} frames/s end to end ({self.wall_s:.1f} s"
                          f"{setup})")
+        if self.streams:
+            lines.append("streams: " + "; ".join(
+                f"{kind} {int(v['messages'])}"
+                + (f" ({int(v['used'])} used)" if v["used"] != v["messages"] else "")
+                + f", {v['first_s']:.6g}–{v['last_s']:.6g} s"
+                for kind, v in self.streams.items()))
+        if self.frames_without_gyro:
+            lines.append(f"frames without the gyro (outage): {self.frames_without_gyro} of "
+                         f"{self.frames}")
         lines += [f"input problem: {p}" for p in (self.problems or
                                                   ([self.problem] if self.problem else []))]
         return "\n".join(lines)
@@ -292,9 +307,10 @@ class LogSink:
             state = {"t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
                      "cov_diag": rec.sigma_rad**2, "nis": rec.nis.get("star fix"),
                      "rejected": [{"input": i, "reason": r} for i, r in rec.rejected]}
-            if self.estimator.video_only:  # no gyro, no bias: the filter's rate instead
-                state["bias"] = None
+            if self.estimator.without_gyro:  # no gyro (now): the filter's rate as well
                 state["omega"] = np.asarray(self.estimator.filter.omega_rad_s)
+            if self.estimator.video_only:  # no gyro, no bias
+                state["bias"] = None
             log.write_json(topics.ESTIMATE_STATE, t, state)
             log.write_json(topics.ESTIMATE_ATTITUDE, t, attitude_deg(
                 t, rec.q_body_icrs, rec.sigma_rad[:3], rec.star_mode or None, rec.n_stars))
@@ -425,10 +441,15 @@ class SummarySink:
         self.frames: list[tuple[float, bool, Any, Any, bool]] = []
 
     def take(self, step: Step) -> None:
+        if step.kind in _STREAMS:
+            self._count(step)
         if step.kind != FRAME or step.record is None:
             return
         s, rec = self.summary, step.record
         s.frames += 1
+        est = self.run.estimator
+        if est.without_gyro and not est.video_only:
+            s.frames_without_gyro += 1
         sol = rec.solution
         if sol is not None:
             s.modes[sol.mode] = s.modes.get(sol.mode, 0) + 1
@@ -451,6 +472,14 @@ class SummarySink:
         sigma = None if rec.sigma_rad is None else float(np.linalg.norm(rec.sigma_rad[:3]))
         self.frames.append((rec.t, bool(rec.fix_accepted), rec.q_body_icrs, sigma,
                             step.head == self.primary))
+
+    def _count(self, step: Step) -> None:
+        t = float(step.msg.t_s)
+        v = self.summary.streams.setdefault(step.kind, {"messages": 0, "used": 0,
+                                                        "first_s": t, "last_s": t})
+        v["messages"] += 1
+        v["used"] += bool(step.used or step.kind == FRAME)
+        v["first_s"], v["last_s"] = min(v["first_s"], t), max(v["last_s"], t)
 
     def close(self) -> None:
         s = self.summary

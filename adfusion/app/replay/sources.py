@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from adfusion.app.errors import UsageError
+from adfusion.imagefiles import decode_frame_bytes, frame_size
 from adfusion.logs import (
     ImageFolderSource,
     McapLogReader,
@@ -33,7 +34,7 @@ from adfusion.logs import (
     read_sensor_csv,
     topics,
 )
-from adfusion.logs.sources import IMAGE_SUFFIXES, to_grey
+from adfusion.logs.sources import IMAGE_SUFFIXES
 from adfusion.outfiles import files_in
 
 __all__ = ["FolderInput", "McapInput", "Ros2BagInput", "Source", "VideoInput", "open_input"]
@@ -121,21 +122,79 @@ def _sensors(imu: str | os.PathLike[str] | None, problems: list[str]) -> list[Me
     if not os.path.exists(imu):
         raise FileNotFoundError(f"--imu {imu}: no such file")
     if str(imu).lower().endswith(".ulg"):
-        return read_ulog(imu)
+        return read_ulog(imu, problems)
     return read_sensor_csv(imu, problems)
 
 
-def read_ulog(path: str | os.PathLike[str]) -> list[Message]:
+def read_ulog(path: str | os.PathLike[str], problems: list[str] | None = None,
+              ) -> list[Message]:
     """Gyro (``sensor_combined.gyro_rad``, rad/s) and magnetometer (``vehicle_magnetometer``
     or ``sensor_mag``, gauss → nT) samples of a PX4 ULog, on the log's clock (its
     ``timestamp``, µs since boot, in seconds): the frames' times must be on that clock
-    (``--timestamps``). Needs ``pyulog`` (the ``ulog`` extra)."""
+    (``--timestamps``). Needs ``pyulog`` (the ``ulog`` extra).
+
+    A file that is not a ULog, or holds no gyro sample, is a ``ValueError`` naming it; one
+    that ends mid-message (:func:`ulog_truncated_at`) or that pyulog finds corrupt is read
+    as far as it goes and said so in ``problems``."""
+    import contextlib
+    import io
+
     try:
         from pyulog import ULog
     except ImportError:
         raise ValueError(f"--imu {path}: reading PX4 ULog needs pyulog "
                          "(pip install 'pyulog>=1.0')") from None
-    ulog = ULog(os.fspath(path), ["sensor_combined", "vehicle_magnetometer", "sensor_mag"])
+    said = io.StringIO()  # pyulog prints its findings: they become our one line
+    try:
+        with contextlib.redirect_stdout(said):
+            ulog = ULog(os.fspath(path), ["sensor_combined", "vehicle_magnetometer",
+                                          "sensor_mag"])
+    except Exception as exc:  # pyulog's ULogException, struct.error, …: not a ULog
+        raise ValueError(f"--imu {path}: not a readable PX4 ULog "
+                         f"({type(exc).__name__}: {exc})") from None
+    out = _ulog_messages(ulog)
+    n_gyro = sum(m.topic == topics.GYRO for m in out)
+    cut = ulog_truncated_at(path)
+    damage = (f"it ends mid-message at byte {cut} of {os.path.getsize(path)} (truncated)"
+              if cut is not None else "pyulog found it corrupt" if ulog.file_corruption
+              else "")
+    if not n_gyro:
+        why = f": {damage}" if damage else " (no sensor_combined topic)"
+        raise ValueError(f"--imu {path}: no gyro sample in the ULog{why}")
+    if damage and problems is not None:
+        last = max(m.t_s for m in out if m.topic == topics.GYRO)
+        problems.append(f"--imu {path}: {damage}; {n_gyro} gyro samples read, up to "
+                        f"t = {last:.6g} s")
+    return out
+
+
+def ulog_truncated_at(path: str | os.PathLike[str]) -> int | None:
+    """Where a ULog's last message starts if the file ends inside it (None when every
+    message is whole): the walk over the message headers the ULog format defines (16-byte
+    file header, then per message a 2-byte size and a 1-byte type). pyulog drops such a
+    message without a word.
+
+    >>> import tempfile, os
+    >>> p = os.path.join(tempfile.mkdtemp(), "x.ulg")
+    >>> _ = open(p, "wb").write(b"ULog" + bytes(12) + bytes([5, 0, 66]) + b"ab")
+    >>> ulog_truncated_at(p)
+    16
+    """
+    import struct
+
+    with open(path, "rb") as f:
+        data = f.read()
+    k = 16
+    while k + 3 <= len(data):
+        (size,) = struct.unpack_from("<H", data, k)
+        if k + 3 + size > len(data):
+            return k
+        k += 3 + size
+    return k if k < len(data) else None
+
+
+def _ulog_messages(ulog) -> list[Message]:
+    """The gyro and magnetometer messages of a parsed ULog, in time order."""
     out: list[Message] = []
     for d in ulog.data_list:
         f = d.data
@@ -176,9 +235,83 @@ class _FramesInput:
     def has_gyro(self) -> bool:
         return self.imu is not None
 
+    def preflight(self) -> None:
+        """Read the IMU file and check its clock against the frames' before the replay
+        (:func:`check_clocks`): a usage error when they cannot be one clock, a problem
+        (counted in the output) when the IMU covers only part of the frames."""
+        if getattr(self, "_sensors", None) is None:
+            self._sensors = _sensors(self.imu, self._source.problems)
+            t = self._frame_span()
+            if self._sensors and t is not None:
+                note = check_clocks([m.t_s for m in self._sensors if m.topic == topics.GYRO],
+                                    t, f"--imu {self.imu}")
+                if note:
+                    self._source.problems.append(note)
+
+    def _frame_span(self) -> tuple[float, float, float] | None:
+        """The frames' first and last time and their median interval (s), if known."""
+        src = self._source
+        times = getattr(src, "times", None)
+        if times is not None and len(times):
+            t = np.sort(np.asarray(times, dtype=np.float64))
+            steps = np.diff(t)
+            steps = steps[steps > 0]
+            return float(t[0]), float(t[-1]), float(np.median(steps)) if len(steps) else 0.0
+        n = getattr(src, "frame_count", 0)
+        if n > 0 and getattr(src, "fps", 0):
+            return float(src.t0_s), float(src.t0_s + (n - 1) / src.fps), 1.0 / src.fps
+        return None
+
     def __iter__(self) -> Iterator[Message]:
-        sensors = _sensors(self.imu, self._source.problems)
+        self.preflight()
+        sensors, self._sensors = self._sensors, None
         return heapq.merge(sensors, _prefetch(self._source.frames()), key=lambda m: m.t_s)
+
+
+def check_clocks(gyro_t_s: list[float], frames_s: tuple[float, float, float],
+                 what: str) -> str:
+    """Whether gyro times ``gyro_t_s`` and frames ``frames_s`` (first, last, median
+    interval; s) can be one clock. Raises :class:`UsageError` when they cannot — a gyro
+    whose samples come more than 30× slower than the frames, or 1000× faster (its times
+    milliseconds or microseconds, or kiloseconds, given as seconds) — or no overlap at all
+    (another clock's origin); returns a note (else "") when the gyro covers only part of
+    the frames. A gyro log longer than the frames is fine.
+
+    >>> check_clocks([0.0, 0.01, 0.02, 5.0], (0.0, 10.0, 0.1), "--imu imu.csv").split(": ")[1]
+    "the gyro covers 0–5 s of the frames' 0–10 s (50 %)"
+    >>> try:
+    ...     check_clocks([0.0, 10.0, 20.0, 10000.0], (0.0, 10.0, 0.1), "--imu imu.csv")
+    ... except UsageError as e:
+    ...     print(str(e).split(": ")[1])
+    the gyro's samples come every 10 s, 100× the frames' 0.1 s
+    """
+    if not gyro_t_s:
+        return ""
+    g = np.sort(np.asarray(gyro_t_s, dtype=np.float64))
+    g0, g1 = float(g[0]), float(g[-1])
+    f0, f1, frame_dt = frames_s
+    span_f = f1 - f0
+    steps = np.diff(g)
+    steps = steps[steps > 0]
+    if len(steps) and frame_dt > 0:
+        gyro_dt = float(np.median(steps))
+        ratio = gyro_dt / frame_dt
+        unit = ("milliseconds" if ratio <= 3e3 else "microseconds") if ratio > 30 else (
+            "kiloseconds (or the frames' milliseconds)" if ratio < 1e-3 / 3 else "")
+        if unit:
+            raise UsageError(f"{what}: the gyro's samples come every {gyro_dt:.3g} s, "
+                             f"{ratio:.3g}× the frames' {frame_dt:.3g} s: are its times "
+                             f"{unit}? Its times must be seconds on the frames' clock")
+    overlap = min(g1, f1) - max(g0, f0)
+    if overlap < 0 or (overlap == 0 and span_f > 0):
+        raise UsageError(f"{what}: the gyro's times {g0:.6g}–{g1:.6g} s and the frames' "
+                         f"{f0:.6g}–{f1:.6g} s do not overlap: put them on one clock (the "
+                         "frames' times come from --fps or --timestamps)")
+    if span_f > 0 and overlap < span_f:
+        return (f"{what}: the gyro covers {max(g0, f0):.6g}–{min(g1, f1):.6g} s of the "
+                f"frames' {f0:.6g}–{f1:.6g} s ({100 * overlap / span_f:.0f} %): frames "
+                "outside it are propagated without the gyro")
+    return ""
 
 
 class FolderInput(_FramesInput):
@@ -202,14 +335,28 @@ class FolderInput(_FramesInput):
         except KeyError as e:
             raise ValueError(f"--timestamps {timestamps}: no {e} column (need filename,t_s)") \
                 from None
+        except ValueError as e:  # name the flag that gave the file
+            if timestamps is None or str(e).startswith("--"):
+                raise
+            raise ValueError(f"--timestamps {e}") from None
         if not self._source.names:
             raise ValueError(f"{folder}: no images (.png, .tif, .jpg, .pgm, ...) in the folder")
         self.imu = imu
         self.config = {}
-        first = cv2.imread(str(Path(folder) / self._source.names[0]), cv2.IMREAD_UNCHANGED)
-        if first is None:
-            raise ValueError(f"{Path(folder) / self._source.names[0]}: not an image OpenCV reads")
-        self._size = (int(first.shape[1]), int(first.shape[0]))
+        # the size from the first frame's header (nothing decoded; a cut frame is dropped
+        # when it is read, with the others); a file without a header is no frame folder
+        self._size = frame_size(Path(folder) / self._source.names[0])
+
+    @property
+    def problems(self) -> list[str]:
+        """The folder's damage, then how many frame files were dropped unread (the first
+        reason: truncated, over the pixel cap, not decodable)."""
+        lines = list(self._source.problems)
+        dropped = self._source.unreadable
+        if dropped:
+            lines.append(f"{len(dropped)} of {len(self._source.names)} frame file(s) "
+                         f"dropped unread (first: {dropped[0]})")
+        return lines
 
 
 
@@ -418,10 +565,7 @@ class Ros2BagInput:
                     cv2.COLOR_BGR2GRAY
                 return cv2.cvtColor(np.ascontiguousarray(img), code)
             return np.ascontiguousarray(img[:, : msg.width].astype(dtype, copy=False))
-        img = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise ValueError(f"cannot decode a {msg.format!r} CompressedImage")
-        return to_grey(img)
+        return decode_frame_bytes(bytes(msg.data), f"a {msg.format!r} CompressedImage")
 
     def __iter__(self) -> Iterator[Message]:
         wanted = [t for t in (self.image_topic, self.imu_topic, self.mag_topic) if t]
