@@ -300,7 +300,7 @@ def acs_section(doc: dict[str, Any], command: str) -> str:
 
 def fuzz_section(doc: dict[str, Any], command: str) -> str:
     names = {"reader": "MCAP reader", "solver": "solver", "sources": "sources",
-             "cli": "command line"}
+             "cli": "command line", "streams": "sensor streams", "writers": "writers"}
     lines = [
         "### Long fuzz run",
         "",
