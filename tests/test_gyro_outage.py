@@ -218,3 +218,36 @@ def test_a_gyro_stream_that_starts_after_the_frames_is_waited_for(flight, tmp_pa
     off = [(p["t"], p["angle_deg"]) for p in errs
            if p["angle_deg"] > max(10 * np.linalg.norm(p["sigma3_deg"]) / 3, 0.2)]
     assert len(errs) == 300 and off == []
+
+
+def _shifted(src: Path, dst: Path, after_s: float, shift_s: float) -> Path:
+    """``src`` with the gyro's clock jumping ``shift_s`` forward at ``after_s``."""
+    reader = McapLogReader(src)
+    with LogWriter(dst, compression="none") as log:
+        log.add_metadata("config", reader.metadata["config"])
+        log.add_camera_model(reader.camera_model())
+        msgs = []
+        for m in _messages(src):
+            if m.topic in (topics.GYRO, topics.MAG, "/camera/centroids", topics.TRUTH_STATE):
+                late = m.topic == topics.GYRO and m.t_s > after_s
+                msgs.append((m.topic, m.t_s + shift_s if late else m.t_s, m.payload))
+        for topic, t, payload in sorted(msgs, key=lambda x: x[1]):
+            log.write_json(topic, t, payload)
+    return dst
+
+
+def test_a_gyro_on_another_clock_is_found_from_the_rotation_both_see(flight, tmp_path):
+    """The stream fuzz run's class: after a gap, a gyro running 0.4 s late turned the
+    rocket at the right rates at the wrong times, 0.3° off at σ 0.03°, and nothing in
+    either stream alone shows it. The star fixes' own rates, compared with the gyro's at
+    every lag, do: the run reports the windows, and the lag."""
+    s = replay(_shifted(flight, tmp_path / "late.mcap", 4.0, 0.4), tmp_path / "out.mcap",
+               progress=False)
+    clock = [p for p in s.problems if p.startswith("gyro clock")]
+    assert clock and all("late" in p for p in clock), s.problems
+    lags = [float(p.split("star fixes' ")[1].split(" s late")[0]) for p in clock]
+    assert all(0.3 <= lag <= 0.5 for lag in lags), lags
+    assert all(float(p.split("from ")[1].split(" s")[0]) >= 4.0 for p in clock)
+    # and the flight on one clock says nothing of the kind
+    s = replay(flight, tmp_path / "out2.mcap", progress=False)
+    assert not [p for p in s.problems if "clock" in p], s.problems

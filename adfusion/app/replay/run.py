@@ -29,6 +29,7 @@ import numpy as np
 
 from adfusion.app.detect_worker import keep_freed_memory
 from adfusion.app.errors import UsageError
+from adfusion.app.replay.clock_check import ClockCheck
 from adfusion.app.replay.sinks import (
     LayoutSink,
     LogSink,
@@ -127,6 +128,7 @@ class Run:
     problems: InputProblems = field(default_factory=InputProblems)
     truth: TruthStage = field(default_factory=TruthStage)
     assumptions: dict[str, Any] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)  # found at the end (the gyro's clock)
 
     def problem_lines(self) -> list[str]:
         """Every problem of the run so far: the input's damage, then the dropped inputs."""
@@ -134,7 +136,7 @@ class Run:
         if found is None:
             one = self.source.problem
             found = [] if one is None else [one]
-        return list(found) + self.problems.lines() + self._outage_lines()
+        return list(found) + self.problems.lines() + self._outage_lines() + self.notes
 
     def _outage_lines(self) -> list[str]:
         """Each time the gyro fell silent past its age limit (the estimator's
@@ -498,6 +500,8 @@ def replay(
         if smooth:
             sinks.append(SmootherSink(log, summary, smooth_mode))
         sinks.append(SummarySink(summary, t_start=t_start))
+        if options.use_gyro:  # last, so closed first: what it finds is in every problem list
+            sinks.append(ClockCheck())
         run(source, sinks, options, progress=progress, ahead=ahead)
     finally:
         ahead.close()
