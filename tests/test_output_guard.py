@@ -50,7 +50,9 @@ def test_every_command_refuses_an_input_as_its_output(tmp_path, logs, capsys):
     other = tmp_path / "other"
     other.mkdir()
     b2 = _png(other / "b.png")
-    inputs = [a, b, b2, cam, log_copy, flight, replayed]
+    imu_as_layout = tmp_path / "x.layout.json"
+    imu_as_layout.write_text("t_s,gyro_x,gyro_y,gyro_z\n0.0,0,0,0\n")
+    inputs = [a, b, b2, cam, log_copy, flight, replayed, imu_as_layout]
     before = _digest(inputs)
     cases = [
         # the case: calibrate replaced a 1.57 MB frame by a 595-byte YAML
@@ -63,6 +65,9 @@ def test_every_command_refuses_an_input_as_its_output(tmp_path, logs, capsys):
         (["replay", str(flight), "-o", str(flight)], "is the input"),
         (["replay", str(frames), "--fps", "1", "--fov", "10", "-o", str(a)], "is the input"),
         (["export", str(replayed), "--csv", str(replayed)], "is the input"),
+        # the layout written beside the log replaced an --imu file of its name (review)
+        (["replay", str(frames), "--fps", "1", "--fov", "10", "--assume-defaults", "--imu",
+          str(imu_as_layout), "-o", str(tmp_path / "x.mcap")], "the layout"),
         (["report", str(log_copy), "-o", str(tmp_path)], "is the input"),
     ]
     for argv, why in cases:

@@ -84,7 +84,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
     _output_file(args.output)
     # the input itself is checked by the replay (an output that is its input, or whose
     # temporary name is); here the files that come with it
-    _outputs_apart([("-o", args.output)],
+    from adfusion.app.replay.sinks import LayoutSink
+
+    _outputs_apart([("-o", args.output), ("the layout", str(LayoutSink.path_for(args.output)))],
                    [p for p in (args.imu, args.timestamps, args.config, args.camera) if p])
     config = None
     if args.config:

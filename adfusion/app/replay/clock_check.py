@@ -78,9 +78,12 @@ def gyro_lags(t_fix: NDArray, q_fix: NDArray, t_gyro: NDArray, w_gyro: NDArray,
                               axis=1)
                 costs.append(float(np.mean(np.sum((wf[inside] - wg) ** 2, axis=1))))
             costs = np.asarray(costs)
+            if not np.isfinite(costs).any():  # no lag with enough gyro samples around
+                t0 += window_s / 2
+                continue
             best = int(np.argmin(costs))
             zero = costs[int(np.argmin(np.abs(lags)))]
-            gain = zero / max(costs[best], 1e-300)
+            gain = zero / max(costs[best], 1e-300) if np.isfinite(zero) else 0.0
             if (np.isfinite(zero) and gain >= GAIN
                     and abs(lags[best]) > 2 * gyro_dt):
                 out.append((float(tm[0]), float(tm[-1]), float(lags[best]), float(gain)))
