@@ -157,6 +157,10 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g = rp.add_argument_group("input")
     g.add_argument("--imu", metavar="FILE", help="gyro/magnetometer samples: CSV (t_s, "
                    "gyro_x..z rad/s, mag_x..z nT) or a PX4 ULog (.ulg)")
+    g.add_argument("--imu-offset", type=finite_float, default=0.0, metavar="S",
+                   help="seconds added to every gyro and magnetometer time, to put the IMU's "
+                        "clock on the frames' (the replay's 'gyro clock' problem says by how "
+                        "much)")
     g.add_argument("--camera", metavar="FILE", help="camera model: OpenCV camera YAML, ROS "
                    "camera_info YAML, or camera.json")
     g.add_argument("--fov", metavar="DEG|LO:HI", help="horizontal field of view (a "

@@ -167,9 +167,9 @@ def random_case(r: random.Random, duration_s: float,
     fault = fault or r.choice(FAULTS)
     a = r.uniform(0.2, duration_s - 0.2)
     # offsets within a logger's timestamp jitter (2 ms); a jump forward of 0.5 s is a gap
-    # after which the gyro runs 0.5 s late, the clock offset the estimator does not
-    # estimate yet (docs/reliability.md); a backward jump merged into a time-ordered log
-    # is a denser gyro, not a fault the log shows
+    # after which the gyro runs 0.5 s late (the replay reports it, and the fixes the filter
+    # finds surprising widen its σ; docs/reliability.md); a backward jump merged into a
+    # time-ordered log is a denser gyro, not a fault the log shows
     b = {"offset": r.uniform(-0.002, 0.002), "jump": r.choice([0.5, 5.0, 1000.0])}.get(
         fault, r.uniform(0.01, 2.0))
     return fault, a, b

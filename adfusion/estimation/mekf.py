@@ -434,6 +434,24 @@ class AttitudeFilter:
             return UpdateResult(False, math.nan, 3, cov)
         return self._attitude_update(qm, cov)
 
+    def widen_attitude(self, disagreement_rad: ArrayLike) -> None:
+        """Admit an attitude error the model did not foresee: add ``δ δᵀ`` to the attitude
+        block of P, ``δ`` the rotation vector (rad, body axes) by which a trusted fix
+        disagreed with the estimate (``R_fix = Exp(δ) R_est``). The state does not move;
+        its 1σ along ``δ`` now reaches the fix, so an estimate the fix contradicts claims
+        no more than it knows, and the next fix that agrees with this one passes the gate.
+
+        >>> f = MEKF([1.0, 0.0, 0.0, 0.0], 1e-4, 1e-6, 1e-5, 1e-7)
+        >>> f.widen_attitude([0.0, 0.0, 1e-3])
+        >>> round(float(np.sqrt(f.P[2, 2])), 6)
+        0.001005
+        """
+        d = np.asarray(disagreement_rad, dtype=np.float64).reshape(3)
+        if not np.all(np.isfinite(d)):
+            raise ValueError(f"widen_attitude: disagreement must be finite, got {d}")
+        p = self._cov()
+        p[:3, :3] += np.outer(d, d)  # in place: the filter's own covariance
+
     def update_camera_attitude(
         self, q_cam_icrs: ArrayLike, cov_cam_rad2: ArrayLike
     ) -> UpdateResult:

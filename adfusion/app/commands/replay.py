@@ -110,7 +110,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
                             q_body_cam=mount, start_utc=args.start_utc, sigma=args.sigma,
                             fov_error_deg=fov_error, epoch=args.epoch,
                             exposure_s=args.exposure, arw_rad_sqrt_s=args.gyro_arw,
-                            rrw_rad_s_sqrt_s=args.gyro_rrw, heads=heads)
+                            rrw_rad_s_sqrt_s=args.gyro_rrw, heads=heads,
+                            imu_offset_s=args.imu_offset)
     s = replay(args.input, args.output, options=options, progress=sys.stderr.isatty(),
                smooth=args.smooth, smooth_mode=args.smoother, compression=args.compression,
                fps=args.fps, timestamps=args.timestamps, imu=args.imu,

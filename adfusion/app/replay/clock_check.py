@@ -127,8 +127,8 @@ class ClockCheck:
             self.run.notes.append(
                 f"gyro clock: from {start:.6g} s to {end:.6g} s the gyro's rates match the "
                 f"star fixes' {abs(lag):.3g} s {side} ({gain:.3g}× better than on time): "
-                "its clock is off there, and so are the estimates; shift the gyro's times "
-                f"by {-lag:+.3g} s")
+                "its clock is off there (the filter's σ widened where the star fixes "
+                f"disagreed); when the whole run is off, replay with --imu-offset {-lag:+.3g}")
 
     def abort(self, reason: str) -> None:
         pass

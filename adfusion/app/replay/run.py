@@ -30,6 +30,7 @@ import numpy as np
 from adfusion.app.detect_worker import keep_freed_memory
 from adfusion.app.errors import UsageError
 from adfusion.app.replay.clock_check import ClockCheck
+from adfusion.app.replay.clock_shift import shift_imu
 from adfusion.app.replay.sinks import (
     LayoutSink,
     LogSink,
@@ -79,7 +80,9 @@ class ReplayOptions:
     lost-in-space; ``epoch`` the catalogue epoch (Julian year); ``exposure_s`` the camera's
     exposure (motion smear in tracking); ``arw_rad_sqrt_s`` / ``rrw_rad_s_sqrt_s`` the
     gyro's angle and rate random walks; ``heads`` the cameras of a several-camera log to
-    replay (default all, fused in one estimator)."""
+    replay (default all, fused in one estimator); ``imu_offset_s`` is added to every gyro
+    and magnetometer time (the IMU's clock put on the frames', as the replay's clock check
+    measures it; :mod:`adfusion.app.replay.clock_shift`)."""
 
     use_gyro: bool = True
     use_mag: bool = True
@@ -97,6 +100,7 @@ class ReplayOptions:
     heads: list[int] | None = None
     config: dict[str, Any] | None = None  # the run configuration, when the input lacks it
     assume_defaults: bool = False  # no configuration at all: DEFAULT_ASSUMPTIONS, recorded
+    imu_offset_s: float = 0.0
 
 
 @dataclass
@@ -152,7 +156,8 @@ class Run:
     def replay_metadata(self) -> dict[str, Any]:
         return {"input": self.source.name, "use_gyro": self.options.use_gyro,
                 "use_mag": self.options.use_mag, "catalog_mag_limit": self.catalog_mag_limit,
-                "catalog_epoch": float(self.solver.catalog.epoch)}
+                "catalog_epoch": float(self.solver.catalog.epoch),
+                "imu_offset_s": float(self.options.imu_offset_s)}
 
 
 def _section(config: dict[str, Any], key: str, name: str) -> dict[str, Any]:
@@ -377,7 +382,10 @@ def run(source: Source, sinks: Sequence[Sink], options: ReplayOptions | None = N
             r.estimator, use_gyro=options.use_gyro, use_mag=options.use_mag,
             cameras={h.index: i for i, h in enumerate(r.heads)}, problems=r.problems,
             sizes={i: (h.camera.width, h.camera.height) for i, h in enumerate(r.heads)}))
-        messages = ahead.read(source if not progress else _progress(source))
+        feed = source if not progress else _progress(source)
+        if options.imu_offset_s:
+            feed = shift_imu(feed, options.imu_offset_s)
+        messages = ahead.read(feed)
         opened: list[Any] = []
         failure: BaseException | None = None
         try:
@@ -486,6 +494,7 @@ def replay(
     ahead.start()
     try:
         source = open_input(in_path, **input_args)
+        source.imu_offset_s = float(options.imu_offset_s)  # the clocks as they will be
         if hasattr(source, "preflight"):  # the IMU file's clock against the frames', first
             source.preflight()
         if not getattr(source, "has_gyro", True) and options.use_gyro:

@@ -243,8 +243,9 @@ class _FramesInput:
             self._sensors = _sensors(self.imu, self._source.problems)
             t = self._frame_span()
             if self._sensors and t is not None:
-                note = check_clocks([m.t_s for m in self._sensors if m.topic == topics.GYRO],
-                                    t, f"--imu {self.imu}")
+                shift = getattr(self, "imu_offset_s", 0.0)  # --imu-offset, applied later
+                note = check_clocks([m.t_s + shift for m in self._sensors
+                                     if m.topic == topics.GYRO], t, f"--imu {self.imu}")
                 if note:
                     self._source.problems.append(note)
 
@@ -305,8 +306,9 @@ def check_clocks(gyro_t_s: list[float], frames_s: tuple[float, float, float],
     overlap = min(g1, f1) - max(g0, f0)
     if overlap < 0 or (overlap == 0 and span_f > 0):
         raise UsageError(f"{what}: the gyro's times {g0:.6g}–{g1:.6g} s and the frames' "
-                         f"{f0:.6g}–{f1:.6g} s do not overlap: put them on one clock (the "
-                         "frames' times come from --fps or --timestamps)")
+                         f"{f0:.6g}–{f1:.6g} s do not overlap: put them on one clock "
+                         "(--imu-offset S adds S s to the IMU's times; the frames' come "
+                         "from --fps or --timestamps)")
     if span_f > 0 and overlap < span_f:
         return (f"{what}: the gyro covers {max(g0, f0):.6g}–{min(g1, f1):.6g} s of the "
                 f"frames' {f0:.6g}–{f1:.6g} s ({100 * overlap / span_f:.0f} %): frames "
