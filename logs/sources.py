@@ -114,9 +114,11 @@ def read_sensor_csv(path: str | os.PathLike[str],
 
     Either group may be absent from the file or empty in a row (sensors at different rates
     share one file). A malformed row (a cell that is not a finite number, a partly empty
-    group) stops the reading there with a warning naming the line and column; the rows
-    before it are returned. A file that is not UTF-8 text, or lacks ``t_s``, is a
-    :class:`ValueError`.
+    group) stops the reading there with a warning naming the line and column and counting
+    the lines not read; the rows before it are returned (a logger cut off mid-line). A
+    malformed first row, a stream whose time does not increase (a repeated sample, a clock
+    that went back), a file that is not UTF-8 text, or one that lacks ``t_s``, is a
+    :class:`ValueError` naming the file and line.
 
     Example:
         >>> import os, tempfile
@@ -138,6 +140,8 @@ def read_sensor_csv(path: str | os.PathLike[str],
               if set(cols) <= fields]
     if not groups:
         raise ValueError(f"{path}: neither {GYRO_COLUMNS} nor {MAG_COLUMNS} columns")
+    last_t: dict[str, tuple[float, int]] = {}  # topic → (time, line) of its last sample
+    line = 0
     for row in reader:
         line = reader.line_num
         try:
@@ -152,14 +156,38 @@ def read_sensor_csv(path: str | os.PathLike[str],
                                                            for c, n in zip(cells, cols,
                                                                            strict=True)]}))
                 elif any(cells):
-                    raise ValueError(f"partly empty {cols}")
+                    empty = [c for c, cell in zip(cols, cells, strict=True) if not cell]
+                    raise ValueError(f"{', '.join(empty)} empty where the rest of "
+                                     f"{', '.join(cols)} is given")
         except (TypeError, ValueError, csv.Error) as exc:
-            last = f"t = {out[-1].t_s} s" if out else "no samples"
-            _report(problems, f"{path}: broken at line {line} ({exc}); read up to {last}")
+            if not out:  # not one sample: the file is not an IMU log to replay
+                raise ValueError(f"{path}: line {line}: {exc}; no sample before it") from None
+            rest = sum(1 for _ in _lines_after(reader))
+            _report(problems, f"{path}: broken at line {line} ({exc}); {len(out)} samples "
+                    f"read (t = {out[0].t_s:g}–{out[-1].t_s:g} s), {rest} line(s) after it "
+                    "not read")
             break
+        for m in rows:  # a stream's times only go forward: a clock that went back, or a
+            if m.topic in last_t and m.t_s <= last_t[m.topic][0]:  # sample twice
+                t0, l0 = last_t[m.topic]
+                raise ValueError(f"{path}: line {line}: t_s {m.t_s:g} is not after line "
+                                 f"{l0}'s {t0:g} ({m.topic} samples): times must increase "
+                                 "(sort the file by t_s, or remove the repeated rows)")
+            last_t[m.topic] = (m.t_s, line)
         out.extend(rows)
     out.sort(key=lambda m: m.t_s)
     return out
+
+
+def _lines_after(reader: Any) -> Iterator[Any]:
+    """The rows left in ``reader``, however broken (counted, not read)."""
+    while True:
+        try:
+            yield next(reader)
+        except StopIteration:
+            return
+        except csv.Error:
+            yield None
 
 
 def _check_fps(fps: Any, missing: str) -> None:

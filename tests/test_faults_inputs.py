@@ -122,3 +122,33 @@ def test_video_source_keeps_the_container_rate_without_fps(tmp_path):
     vw.release()
     assert VideoSource(video).fps == pytest.approx(25.0)
     assert Path(video).exists()
+
+
+@pytest.mark.parametrize("times, why", [
+    ([0.0, 0.01, 0.01, 0.02], r"line 4: t_s 0.01 is not after line 3's 0.01"),  # repeated
+    ([0.0, 0.02, 0.01, 0.03], r"line 4: t_s 0.01 is not after line 3's 0.02"),  # backwards
+])
+def test_an_imu_stream_whose_time_does_not_increase_is_refused(tmp_path, times, why):
+    """A repeated sample or a clock that went back was sorted into the stream silently
+    (review of issue 33): the file and line are named."""
+    path = tmp_path / "imu.csv"
+    path.write_text(HEADER + "".join(f"{t},0.1,0,0\n" for t in times))
+    with pytest.raises(ValueError, match=r"imu\.csv: " + why):
+        read_sensor_csv(path)
+
+
+def test_a_gyro_and_a_magnetometer_at_one_time_are_two_streams_not_a_repeat(tmp_path):
+    path = tmp_path / "imu.csv"
+    path.write_text("t_s,gyro_x,gyro_y,gyro_z,mag_x,mag_y,mag_z\n"
+                    "0.0,0.1,0,0,,,\n0.0,,,,2e4,0,-4e4\n0.01,0.1,0,0,,,\n")
+    assert [m.topic for m in read_sensor_csv(path)] == ["/imu/gyro", "/mag", "/imu/gyro"]
+
+
+def test_an_imu_file_broken_before_its_first_sample_is_refused(tmp_path):
+    """It replayed on without a gyro, with a warning saying "read up to no samples"."""
+    path = tmp_path / "imu.csv"
+    path.write_text(HEADER + "0.0,0.1,,0\n0.01,0.1,0,0\n")
+    with pytest.raises(ValueError, match=r"imu\.csv: line 2: gyro_y empty where the rest "
+                                         r"of gyro_x, gyro_y, gyro_z is given; no sample "
+                                         r"before it"):
+        read_sensor_csv(path)

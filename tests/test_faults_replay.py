@@ -361,3 +361,34 @@ def test_a_logged_camera_model_is_read_as_strictly_as_a_camera_file(sim, tmp_pat
     with pytest.raises(ValueError, match=r"camera model \(camera\.json\) is unusable: "
                                          r"camera\.json: width: .* is not an integer"):
         replay(bad, tmp_path / "out.mcap", progress=False)
+
+
+@pytest.mark.parametrize("at_step", [2, 25])
+def test_a_replay_failing_mid_run_exits_1_with_its_one_line(tmp_path, at_step):
+    """Issue 33 saw a failing replay end by SIGABRT from a worker thread. In a fresh
+    process (its threads and shutdown real), a folder replay whose estimation fails at a
+    step while detection runs ahead in its worker exits 1 with one line, no abort."""
+    import cv2
+
+    frames = tmp_path / "frames"
+    frames.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(40):
+        cv2.imwrite(str(frames / f"f{k:03d}.png"), rng.integers(0, 40, (96, 128), np.uint8))
+    code = ("import sys\n"
+            "from adfusion.app.replay import stages\n"
+            "orig, n = stages.EstimationStage.__call__, [0]\n"
+            "def failing(self, step):\n"
+            "    n[0] += 1\n"
+            f"    if n[0] == {at_step}:\n"
+            "        raise RuntimeError('estimation failed')\n"
+            "    return orig(self, step)\n"
+            "stages.EstimationStage.__call__ = failing\n"
+            "from adfusion.app.cli import main\n"
+            "sys.exit(main(sys.argv[1:]))\n")
+    p = subprocess.run([sys.executable, "-P", "-c", code, "replay", str(frames), "--fps", "10",
+                        "--fov", "20", "-o", str(tmp_path / "out.mcap")],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 1, (p.returncode, p.stderr[-500:])
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and "estimation failed" in lines[0], p.stderr[-500:]
