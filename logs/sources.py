@@ -39,6 +39,7 @@ import cv2
 import numpy as np
 from adfusion.logs import topics
 from adfusion.logs.message import Message
+from adfusion.logs.name_times import times_from_names
 from adfusion.logs.reader import McapLogReader, McapReadWarning
 
 from adfusion.imagefiles import ImageFileError, max_image_pixels, read_frame_file, shown_path
@@ -252,6 +253,14 @@ def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
     return [times[n][0] for n in names]
 
 
+def _utc_minus(start_utc: str, seconds: float) -> str:
+    """ISO 8601 UTC ``seconds`` before ``start_utc``."""
+    import datetime as dt
+
+    t = dt.datetime.fromisoformat(start_utc.replace("Z", "+00:00"))
+    return (t - dt.timedelta(seconds=seconds)).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+
+
 class ImageFolderSource:
     """Images of a folder in name order (in time order with a timestamps CSV), with a sensor
     CSV merged in by time.
@@ -259,6 +268,9 @@ class ImageFolderSource:
     Args:
         folder: directory of images (``.png``, ``.tif``, ``.jpg``, ``.pgm``, ... ).
         fps: frame rate when there is no timestamps CSV; frame ``i`` is at ``t0_s + i / fps``.
+            Without either, the times the file names give
+            (:mod:`adfusion.logs.name_times`), when every name gives one; with ``fps`` or
+            without, names that give times set :attr:`start_utc`.
         t0_s: time of the first frame with ``fps``.
         timestamps_csv: CSV with columns ``filename, t_s`` (file name without folder); the
             frames are then replayed in the order of their times.
@@ -278,7 +290,21 @@ class ImageFolderSource:
             raise ValueError(f"{self.folder}: not a folder of images")
         self.names = sorted(p.name for p in self.folder.iterdir()
                             if p.suffix.lower() in IMAGE_SUFFIXES)
-        self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv)
+        #: the UTC of t = 0 when the file names give the frames' times (else None)
+        self.start_utc: str | None = None
+        named = times_from_names(self.names) if timestamps_csv is None and self.names else None
+        if named is not None and not named.why:
+            self.start_utc = _utc_minus(named.start_utc, t0_s)
+        if not self.names:
+            self.times = []  # nothing to time: the caller says the folder has no images
+        elif fps is None and timestamps_csv is None and named is not None:
+            if named.why:
+                raise ValueError(f"{self.folder}: frame times unknown: give fps or a "
+                                 f"timestamps CSV (the file names give none: {named.why})")
+            self.names[:] = [n for _, n in sorted(zip(named.t_s, self.names, strict=True))]
+            self.times = [t0_s + t for t in sorted(named.t_s)]
+        else:
+            self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv)
         self.sensors_csv = sensors_csv
         self.problems: list[str] = []
         self.unreadable: list[str] = []  # why each skipped frame was not read, in time order

@@ -405,8 +405,8 @@ def test_broken_csv_and_image_are_reported(tmp_path: Path) -> None:
     sensors = tmp_path / "imu.csv"
     _write_sensor_csv(sensors, bad_line=True)
     problems: list[str] = []
-    with pytest.warns(McapReadWarning, match=r"broken at line 12 .*12 samples read \(t = 0–0.09 s\), "
-                                          r"10 line\(s\) after it not read"):
+    with pytest.warns(McapReadWarning, match=r"broken at line 12 .*12 samples read "
+                      r"\(t = 0–0.09 s\), 10 line\(s\) after it not read"):
         msgs = read_sensor_csv(sensors, problems)
     assert len([m for m in msgs if m.topic == "/imu/gyro"]) == 10 and len(problems) == 1
     folder = tmp_path / "frames"

@@ -125,6 +125,47 @@ def test_folder_of_frames_with_timestamps_and_imu_csv(flight, tmp_path, capsys):
     assert abs(first / 1e9 - start) < 1.0
 
 
+def test_frames_named_by_their_time_need_no_fps_timestamps_or_start(flight, tmp_path,
+                                                                     capsys):
+    """Issue 33, item 7: a folder whose file names are the frames' UTC times carries its
+    own clock. Replayed with none of --fps, --timestamps, --start-utc, it gives what the
+    timestamps CSV and --start-utc give, and says where its times came from."""
+    import datetime as dt
+
+    _d, sim, scenario = flight
+    folder = tmp_path / "named"
+    folder.mkdir()
+    start = dt.datetime(1995, 11, 7, 8, 7, tzinfo=dt.UTC)
+    for t, img in _frames_of(sim):  # names in local time (+02:00), to the µs
+        when = (start + dt.timedelta(seconds=t)).astimezone(dt.timezone(dt.timedelta(hours=2)))
+        cv2.imwrite(str(folder / when.strftime("cam_%Y-%m-%dT%H-%M-%S.%f+0200.png")), img)
+    _imu_csv(sim, tmp_path / "imu.csv")
+    from adfusion.app.camera_file import save_camera
+
+    save_camera(scenario.camera, tmp_path / "camera.yaml")
+    out = tmp_path / "named.mcap"
+    assert main(["replay", str(folder), "-o", str(out), "--imu", str(tmp_path / "imu.csv"),
+                 "--camera", str(tmp_path / "camera.yaml"), *mount_args(scenario)]) == 0
+    err = capsys.readouterr().err
+    assert "frame times (90 frames over 2.9" in err and "from the file names, from " \
+        "1995-11-07T08:07:00" in err and "read as UTC" not in err, err
+    tt, tq = truth_of(sim)  # the truth nearest each estimate: names hold whole µs
+    est = [(m.payload["t"], m.payload["q_body_icrs"]) for m in McapLogReader(out)
+           if m.topic == topics.ESTIMATE_STATE]
+    k = np.abs(tt[None, :] - np.array([t for t, _ in est])[:, None]).argmin(axis=1)
+    assert np.allclose(tt[k], [t for t, _ in est], atol=1e-6)
+    e = np.degrees(rot.angle_between(np.asarray([q for _, q in est]), tq[k]))
+    assert len(e) == 90 and float(np.sqrt(np.mean(e**2))) < 0.05
+    assert McapLogReader(out).start_utc.startswith("1995-11-07T08:07:00")
+    # names that cannot order the frames: said with the other missing pieces, at once
+    (folder / "dark.png").write_bytes((folder / next(iter(sorted(
+        p.name for p in folder.iterdir())))).read_bytes())
+    assert main(["replay", str(folder), "-o", str(tmp_path / "x.mcap")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "dark.png: no date and time in the name" in err \
+        and "--fov" in err, err
+
+
 def test_video_without_imu_replays_video_only(flight, tmp_path, capsys):
     _d, sim, scenario = flight
     video = tmp_path / "flight.mkv"

@@ -36,18 +36,38 @@ def _missing_inputs(args: argparse.Namespace) -> None:
         if file and not os.path.exists(file):  # a file named but absent, before what it
             raise FileNotFoundError(f"{flag} {file}: no such file")  # would have given
     missing = []
-    if folder and not (args.fps or args.timestamps):
-        missing.append("the frames' times: give --fps HZ or --timestamps CSV (filename,t_s)")
+    named = _name_times(path) if folder and not args.timestamps else None
+    if folder and not (args.fps or args.timestamps) and named.why:
+        missing.append("the frames' times: give --fps HZ or --timestamps CSV (filename,t_s); "
+                       f"the file names give none ({named.why})")
     if not (args.camera or args.fov):
         missing.append("the lens: give --camera FILE or --fov DEG (LO:HI when known roughly)")
     if args.imu and not (args.mount or args.config or args.assume_defaults):
         missing.append("how the camera sits on the IMU's body and the gyro's noise: give --mount "
                        "w,x,y,z, --config FILE.json or --assume-defaults")
     if missing:
-        later = ("" if args.start_utc else "; and for `adfusion export` later, --start-utc "
-                 "TIME (the UTC of t = 0)")
+        later = ("" if args.start_utc or (named is not None and not named.why) else
+                 "; and for `adfusion export` later, --start-utc TIME (the UTC of t = 0)")
         raise UsageError(f"{path}: a {'folder of frames' if folder else 'video'} needs "
                          + "; ".join(missing) + later)
+    if named is not None and not named.why and not args.start_utc:
+        # said, not silent: names written on local time would shift every UTC
+        what = "the UTC of t = 0" if args.fps else (
+            f"frame times ({len(named.t_s)} frames over {max(named.t_s):.6g} s)")
+        print(f"adfusion replay: {what} from the file names, from {named.start_utc}"
+              + ("" if named.zoned else " (read as UTC: give --start-utc if they are local "
+                 "time)"), file=sys.stderr)
+
+
+def _name_times(folder: str):
+    """What the image file names of ``folder`` say of the frames' times."""
+    from pathlib import Path
+
+    from adfusion.logs.name_times import times_from_names
+    from adfusion.logs.sources import IMAGE_SUFFIXES
+
+    names = sorted(p.name for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    return times_from_names(names)
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

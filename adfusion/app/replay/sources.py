@@ -325,9 +325,6 @@ class FolderInput(_FramesInput):
                  timestamps: str | os.PathLike[str] | None = None,
                  imu: str | os.PathLike[str] | None = None) -> None:
         self.name = str(folder)
-        if timestamps is None and not fps:
-            raise UsageError(f"{folder}: frame times unknown: give --fps HZ or "
-                             "--timestamps CSV (columns filename,t_s)")
         if fps is not None and not fps > 0:
             raise UsageError(f"--fps {fps}: a frame rate must be positive")
         if timestamps is not None and not os.path.exists(timestamps):
@@ -338,6 +335,10 @@ class FolderInput(_FramesInput):
             raise ValueError(f"--timestamps {timestamps}: no {e} column (need filename,t_s)") \
                 from None
         except ValueError as e:  # name the flag that gave the file
+            if timestamps is None and not fps and "frame times unknown" in str(e):
+                raise UsageError(str(e).replace("give fps or a timestamps CSV",
+                                                "give --fps HZ or --timestamps CSV (columns "
+                                                "filename,t_s)")) from None
             if timestamps is None or str(e).startswith("--"):
                 raise
             raise ValueError(f"--timestamps {e}") from None
@@ -345,6 +346,8 @@ class FolderInput(_FramesInput):
             raise ValueError(f"{folder}: no images (.png, .tif, .jpg, .pgm, ...) in the folder")
         self.imu = imu
         self.config = {}
+        #: the UTC of t = 0 from the file names, when they give the frames' times
+        self.start_utc = self._source.start_utc
         # the size from the first frame's header (nothing decoded; a cut frame is dropped
         # when it is read, with the others); a file without a header is no frame folder
         self._size = frame_size(Path(folder) / self._source.names[0])
