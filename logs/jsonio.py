@@ -18,7 +18,7 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from adfusion.plain import json_default, to_jsonable
+from adfusion.plain import json_default, printable, to_jsonable
 
 try:
     import orjson
@@ -37,11 +37,20 @@ def dumps(value: Any) -> str:
     Tried first without the copy — the encoder meets numpy values through ``default`` —
     and redone with it when a non-finite float makes strict JSON fail (a replay writes a
     few records a frame; the copy cost ~0.15 ms of them). Both give the same text, except
-    that dict keys ``True``/``False``/``None`` come out as JSON spells them."""
+    that dict keys ``True``/``False``/``None`` come out as JSON spells them, and that a
+    lone surrogate (a file name that is not UTF-8) is written :func:`printable` (``\\xff``),
+    never as the ``\\udcff`` escape strict JSON readers refuse.
+
+    >>> print(dumps({"input": "frames/\\udcff.png"}))
+    {"input":"frames/\\\\xff.png"}
+    """
     try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False, default=json_default)
+        text = json.dumps(value, separators=(",", ":"), allow_nan=False, default=json_default)
     except ValueError:  # NaN or infinity: to_jsonable turns them into null
         return json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
+    if "\\ud" in text:  # a surrogate escape: lone ones are made printable (pairs stay)
+        return json.dumps(to_jsonable(value), separators=(",", ":"), allow_nan=False)
+    return text
 
 
 def dumps_bytes(value: Any) -> bytes:
@@ -76,13 +85,20 @@ def _parses_as_json(text: str) -> bool:
 
 def encode_metadata(data: Mapping[str, Any]) -> dict[str, str]:
     """String map for an MCAP metadata record: strings stay as they are unless they would read
-    back as another JSON value (then they are JSON-quoted); everything else is JSON text."""
+    back as another JSON value (then they are JSON-quoted); everything else is JSON text.
+    Keys and strings are :func:`printable` (MCAP strings are UTF-8: a name that is not
+    UTF-8 would stop the writer).
+
+    >>> encode_metadata({"input": "frames-\\udcff"})
+    {'input': 'frames-\\\\xff'}
+    """
     out: dict[str, str] = {}
     for key, value in data.items():
-        if isinstance(value, str) and not _parses_as_json(value):
-            out[str(key)] = value
+        key = printable(str(key))
+        if isinstance(value, str) and not _parses_as_json(value := printable(value)):
+            out[key] = value
         else:
-            out[str(key)] = dumps(value)
+            out[key] = dumps(value)
     return out
 
 

@@ -48,6 +48,8 @@ from mcap.records import Attachment, Channel, Chunk, ChunkIndex, Metadata, Schem
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import breakup_chunk
 
+from adfusion.plain import listed
+
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEADER = struct.Struct("<BQ")
 _CHUNK_TIMES = struct.Struct("<QQ")  # a chunk record starts with its message time range
@@ -774,9 +776,9 @@ class McapLogReader:
                          lost_messages=late, stacklevel=3)
         if orphans:
             n = sum(orphans.values())
-            self._report(-1, f"{n} message(s) on channel(s) {sorted(orphans)} whose channel "
-                         "record was lost with the damage: skipped", lost_messages=n,
-                         stacklevel=3)
+            self._report(-1, f"{n} message(s) on channel(s) {listed(sorted(orphans), 8)} "
+                         "whose channel record was lost with the damage: skipped",
+                         lost_messages=n, stacklevel=3)
         stated = self.stated_message_count
         if stated is not None and delivered != stated and delivered != self.message_count:
             self._report(-1, f"the file states {stated} messages, {delivered} could be read",

@@ -43,6 +43,7 @@ from adfusion.logs.name_times import times_from_names
 from adfusion.logs.reader import McapLogReader, McapReadWarning
 
 from adfusion.imagefiles import ImageFileError, max_image_pixels, read_frame_file, shown_path
+from adfusion.plain import listed
 
 IMAGE_TOPIC = topics.CAMERA_IMAGE
 GYRO_TOPIC = topics.GYRO
@@ -135,12 +136,13 @@ def read_sensor_csv(path: str | os.PathLike[str],
     names, reader, _ = _csv_rows(path)
     fields = set(names)
     if "t_s" not in fields:
-        raise ValueError(f"{path}: no 't_s' column (have {sorted(fields)})")
+        raise ValueError(f"{path}: no 't_s' column (have {listed(sorted(fields), 8)})")
     groups = [(cols, topic, key) for cols, topic, key in
               ((GYRO_COLUMNS, GYRO_TOPIC, "omega"), (MAG_COLUMNS, MAG_TOPIC, "b_body"))
               if set(cols) <= fields]
     if not groups:
-        raise ValueError(f"{path}: neither {GYRO_COLUMNS} nor {MAG_COLUMNS} columns")
+        raise ValueError(f"{path}: neither the columns {', '.join(GYRO_COLUMNS)} nor "
+                         f"{', '.join(MAG_COLUMNS)}")
     last_t: dict[str, tuple[float, int]] = {}  # topic → (time, line) of its last sample
     line = 0
     for row in reader:
@@ -212,20 +214,27 @@ def _check_t0(t0_s: Any) -> None:
 
 
 def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
-                 timestamps_csv: str | os.PathLike[str] | None) -> list[float]:
+                 timestamps_csv: str | os.PathLike[str] | None,
+                 problems: list[str] | None = None) -> list[float]:
     """The time of each frame of ``names``: ``t0_s + i / fps``, or a timestamps CSV's
     (``filename, t_s``; then ``names`` is put in time order, in place). A CSV's negative
     time, second time for one file, or one time for two files is a ``ValueError`` naming
-    the file and line."""
+    the file and line.
+
+    Nothing of a CSV that does not match the folder is dropped silently: rows naming no
+    image of the folder, and images without a row (removed from ``names``: they have no
+    time, so they are not replayed), are each counted and said in ``problems``, the first
+    few by name; a CSV that names none of the folder's images is a ``ValueError``."""
     _check_t0(t0_s)
     if timestamps_csv is None:
         _check_fps(fps, "give fps (> 0) or a timestamps CSV")
         return [t0_s + i / fps for i in range(len(names))]
+    problems = [] if problems is None else problems
     times: dict[str, tuple[float, int]] = {}  # file name → (t_s, line)
     fields, rows, reader = _csv_rows(timestamps_csv)
     if not {"filename", "t_s"} <= set(fields):
         raise ValueError(f"{timestamps_csv}: needs the columns 'filename' and 't_s' (have "
-                         f"{sorted(fields)})")
+                         f"{listed(sorted(fields), 8)})")
     try:
         for row in rows:
             t_s = _finite((row.get("t_s") or "").strip(), "t_s")
@@ -239,9 +248,25 @@ def _frame_times(names: list[str], folder: Path, fps: float | None, t0_s: float,
             times[name] = (t_s, reader.line_num)
     except (ValueError, csv.Error) as exc:
         raise ValueError(f"{timestamps_csv}: line {reader.line_num}: {exc}") from None
+    present = set(names)
+    strays = [(line, n) for n, (_, line) in times.items() if n not in present]
     missing = [n for n in names if n not in times]
+    if len(missing) == len(names):
+        said = (f"; its rows name {listed(n or '(empty)' for _, n in strays)}" if strays
+                else "; it has no rows")
+        raise ValueError(f"{timestamps_csv}: no time for any of the folder's {len(names)} "
+                         f"image(s) ({listed(shown_path(n) for n in names)}){said}: the "
+                         "filename column names each image's file in the folder")
+    if strays:
+        _report(problems, f"{timestamps_csv}: {len(strays)} row(s) name no image of the "
+                f"folder {shown_path(folder)} ("
+                + listed(f"line {line}: {n or '(empty)'}" for line, n in strays)
+                + "): their times are not used")
     if missing:
-        raise ValueError(f"{timestamps_csv}: no time for {missing[:3]} ({len(missing)} images)")
+        _report(problems, f"{timestamps_csv}: {len(missing)} of the folder's {len(names)} "
+                f"image(s) have no row, so no time, and are not replayed: "
+                + listed(shown_path(n) for n in missing))
+        names[:] = [n for n in names if n in times]
     # the frames are replayed in the order of their times (the file's truth, whatever
     # the names' order); two frames at one time cannot both be true
     names.sort(key=lambda n: times[n][0])
@@ -295,6 +320,9 @@ class ImageFolderSource:
         named = times_from_names(self.names) if timestamps_csv is None and self.names else None
         if named is not None and not named.why:
             self.start_utc = _utc_minus(named.start_utc, t0_s)
+        #: what the input has wrong (a timestamps CSV that does not match the folder, a
+        #: frame that could not be read, the sensor CSV's damage), one line each
+        self.problems: list[str] = []
         if not self.names:
             self.times = []  # nothing to time: the caller says the folder has no images
         elif fps is None and timestamps_csv is None and named is not None:
@@ -304,9 +332,9 @@ class ImageFolderSource:
             self.names[:] = [n for _, n in sorted(zip(named.t_s, self.names, strict=True))]
             self.times = [t0_s + t for t in sorted(named.t_s)]
         else:
-            self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv)
+            self.times = _frame_times(self.names, self.folder, fps, t0_s, timestamps_csv,
+                                      self.problems)
         self.sensors_csv = sensors_csv
-        self.problems: list[str] = []
         self.unreadable: list[str] = []  # why each skipped frame was not read, in time order
         max_image_pixels()  # a bad ADFUSION_MAX_IMAGE_PIXELS is said once, here
 

@@ -29,6 +29,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -341,7 +342,8 @@ class LogWriter:
 
     def close(self) -> None:
         """Finish the last chunk, write the summary and indexes, close the file (idempotent);
-        with ``atomic``, then rename it to :attr:`path`."""
+        with ``atomic``, then rename it to :attr:`path` — or, when finishing fails (a full
+        disk), remove the temporary file, which could not be completed, and raise."""
         if self._closed:
             return
         self._closed = True
@@ -356,6 +358,11 @@ class LogWriter:
                 self._file.close()
             if self.partial_path != self.path:
                 os.replace(self.partial_path, self.path)
+        except BaseException:
+            if self.partial_path != self.path:
+                with contextlib.suppress(OSError):
+                    os.remove(self.partial_path)
+            raise
         finally:
             self._release()  # the lock outlives the rename: no one sees a half-there file
 
@@ -365,23 +372,26 @@ class LogWriter:
 
     def abort(self, reason: str) -> None:
         """End a run that failed: an ``incomplete`` metadata record (``reason``, messages
-        written), then :meth:`close`. When even that fails (a full disk), the partial file
-        is removed and the original error stands."""
+        written), then :meth:`close`. When even that fails (a full disk, a writer left
+        broken by the failure), the partial file is removed and the original error stands:
+        an aborted writer leaves its log marked ``incomplete``, or nothing — never its
+        temporary file or its lock (a Ctrl-C meanwhile is raised after the cleanup)."""
         if self._closed:
             return
         try:
             self.add_metadata("incomplete", {"reason": reason,
                                              "messages_written": self.message_count})
             self.close()
-        except OSError:
+        except BaseException as exc:
             self._closed = True
-            self._file.close()
+            with contextlib.suppress(Exception):
+                self._file.close()
             if self.partial_path != self.path:
-                try:
+                with contextlib.suppress(OSError):
                     os.remove(self.partial_path)
-                except OSError:
-                    pass
             self._release()
+            if not isinstance(exc, Exception):  # KeyboardInterrupt, SystemExit: not ours
+                raise
 
     def flush(self) -> None:
         """End the chunk in progress now (it becomes readable after a crash)."""

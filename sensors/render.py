@@ -64,6 +64,8 @@ from adfusion.starid.camera.model import Camera
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import erf
 
+from adfusion.plain import listed
+
 __all__ = [
     "Frame",
     "Intensifier",
@@ -138,7 +140,8 @@ class SensorModel:
 
     def __post_init__(self) -> None:
         if self.noise not in _NOISE_MODELS:
-            raise ValueError(f"noise must be one of {_NOISE_MODELS}, got {self.noise!r}")
+            raise ValueError(f"noise must be one of {listed(_NOISE_MODELS, None)}, got "
+                             f"{self.noise!r}")
         if not self.psf_sigma_px > 0:
             raise ValueError(f"psf_sigma_px must be > 0, got {self.psf_sigma_px!r}")
         if self.background_e < 0 or self.read_noise_e < 0 or self.hot_pixels < 0:
@@ -200,7 +203,7 @@ class Tether:
             "right": ((w - 0.5, -0.5 + position * h), (-1.0, 0.0)),
         }
         if edge not in edges:
-            raise ValueError(f"edge must be one of {tuple(edges)}, got {edge!r}")
+            raise ValueError(f"edge must be one of {listed(edges, None)}, got {edge!r}")
         (x0, y0), (nx, ny) = edges[edge]
         a = np.radians(angle_deg)
         # rotate the inward normal by +a (clockwise on an image with y down)

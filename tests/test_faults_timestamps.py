@@ -71,3 +71,50 @@ def test_a_folder_replay_says_everything_it_lacks_at_once(tmp_path, capsys):
     assert main(["replay", str(folder), "--fps", "1", "--fov", "10", "--assume-defaults",
                  "--start-utc", "2026-01-01T00:00:00Z", "-o", str(tmp_path / "out.mcap")]) in (0, 1)
     assert (tmp_path / "out.mcap").exists()
+
+
+def test_rows_and_frames_that_do_not_match_are_counted_and_said(tmp_path, capsys):
+    """Rows naming files the folder does not have were ignored silently, and a frame
+    without a row stopped the whole replay (new-user review): each is an input problem,
+    counted, the first few named, and the frames that have a time are replayed."""
+    import warnings
+
+    from adfusion.logs import McapLogReader
+
+    folder = _folder(tmp_path, ["a.png", "b.png", "c.png", "d.png", "e.png", "f.png"])
+    stamps = _stamps(tmp_path, [("a.png", 0.0), ("x.png", 0.05), ("b.png", 0.1),
+                                ("frames/y.png", 0.2), ("c.png", 0.3), ("z.png", 0.4),
+                                ("w.png", 0.5)])
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        src = ImageFolderSource(folder, timestamps_csv=stamps)
+    assert src.names == ["a.png", "b.png", "c.png"] and src.times == [0.0, 0.1, 0.3]
+    rows, frames = src.problems
+    assert ("4 row(s) name no image of the folder" in rows
+            and "(line 3: x.png, line 5: y.png, line 7: z.png and 1 more)" in rows), rows
+    assert frames.endswith("3 of the folder's 6 image(s) have no row, so no time, and are "
+                           "not replayed: d.png, e.png, f.png"), frames
+    out = tmp_path / "out.mcap"
+    code = main(["replay", str(folder), "--timestamps", str(stamps), "--fov", "10",
+                 "-o", str(out)])
+    text = capsys.readouterr().out
+    assert code == 1  # an input problem
+    assert "frames 3," in text and f"input problem: {rows}" in text, text
+    assert f"input problem: {frames}" in text
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        said = McapLogReader(out).metadata["problems"]["input"]
+    assert rows in said and frames in said
+
+
+def test_a_timestamps_csv_that_names_none_of_the_frames_is_refused(tmp_path, capsys):
+    folder = _folder(tmp_path, ["a.png", "b.png"])
+    stamps = _stamps(tmp_path, [("img_0001.png", 0.0), ("img_0002.png", 0.1)])
+    with pytest.raises(ValueError, match=r"no time for any of the folder's 2 image\(s\) "
+                                         r"\(a\.png, b\.png\); its rows name img_0001\.png, "
+                                         r"img_0002\.png"):
+        ImageFolderSource(folder, timestamps_csv=stamps)
+    assert main(["replay", str(folder), "--timestamps", str(stamps), "--fov", "10",
+                 "-o", str(tmp_path / "out.mcap")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].count("--timestamps") == 1, err

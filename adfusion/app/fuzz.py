@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from adfusion.app.fuzz_violation import FuzzViolation
+from adfusion.plain import listed
 
 __all__ = ["FuzzViolation", "ReaderCorpus", "SolverBank", "check_cli", "check_reader",
            "check_solver", "check_sources", "cli_argv", "run"]
@@ -383,7 +384,7 @@ def check_cli(argv: list[str]) -> str:
         ("usage:", " ", "example:", "\t")) and "Warning" not in ln]
     if code != 0 and len(lines) != 1 and not (code == 1 and not lines):
         raise FuzzViolation("cli", f"{argv}: exit {code} with {len(lines)} error lines: "
-                            f"{lines[:3]}")
+                            f"{listed(lines, 3, sep=' | ')}")
     return "ok" if code == 0 else "reported"
 
 

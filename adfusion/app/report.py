@@ -42,7 +42,7 @@ from adfusion.logs import McapLogReader, topics
 from adfusion.maths import rotations as rot
 from adfusion.outfiles import refuse_overwrite
 
-__all__ = ["log_problems", "report"]
+__all__ = ["log_problems", "log_streams", "report"]
 
 _CHI2_3 = (0.2157952826, 9.3484036045)  # χ²(3) 2.5 % and 97.5 % points
 _WINDOW = 20  # frames in the NIS running mean
@@ -130,8 +130,10 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
         _attitude_error(log, out, lines), _nis(log, out, lines), _stars(log, out, lines),
         _residuals(log, out, lines), _solve_time(log, out, lines), _bias(log, out, lines),
         _track(log, out)]
-    # damage found reading the log, the run's input problems and dropped counts, an
+    # how much of each input stream the run had and used (as the replay's summary said),
+    # then damage found reading the log, the run's input problems and dropped counts, an
     # incomplete run, the defaults it assumed
+    lines += log_streams(log.reader)
     lines += [f"problem: {p}" for p in log_problems(log.reader)]
     name = Path(log_path).name
     md = out / "summary.md"
@@ -150,6 +152,24 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
         f"</style></head><body><h1>Replay report: {html.escape(name)}</h1><ul>"
         + "".join(f"<li>{html.escape(x)}</li>" for x in lines) + f"</ul>{figs}</body></html>")
     return [*files, md, page]
+
+
+def log_streams(reader: McapLogReader) -> list[str]:
+    """How much of each input stream (frames, gyro, magnetometer) a replay had and used,
+    and the frames it met without the gyro: the replay summary's ``streams:`` lines, from
+    the log's ``streams`` metadata (none for a log written before it was recorded)."""
+    from adfusion.app.replay.sinks import streams_lines
+
+    rec = reader.metadata.get("streams")
+    if not isinstance(rec, dict):
+        return []
+    streams = {k: v for k, v in rec.items() if isinstance(v, dict)
+               and {"messages", "used", "first_s", "last_s"} <= set(v)}
+    try:
+        return streams_lines(streams, int(rec.get("frames_without_gyro", 0)),
+                             int(rec.get("frames", 0)))
+    except (TypeError, ValueError):  # a record this version does not know: not drawn
+        return []
 
 
 def log_problems(reader: McapLogReader) -> list[str]:

@@ -42,6 +42,7 @@ import numpy as np
 from adfusion.basilisk.scenarios import LOOPS, LoopRun, run_loop, scenario
 from adfusion.logs import LogWriter
 from adfusion.maths import rotations as rot
+from adfusion.plain import listed
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.catalog.stars import Catalog
 from adfusion.starid.solver import Solver
@@ -131,10 +132,11 @@ class AcsReport:
                              f"{st['p95_arcsec']:.2f} | {st['max_arcsec']:.2f} |")
         if self.camera:
             c = self.camera
+            modes = listed((f"{m} {n}" for m, n in c["modes"].items()), None)
             lines += ["", f"camera: {c['frames']} frames, {c['frames_3_stars']} with ≥ 3 stars "
                           f"in view and not blinded, {c['identified_3_stars']} identified "
                           f"({100 * c['identified_fraction']:.2f} %), {c['wrong']} wrong "
-                          f"fixes; modes {c['modes']}"]
+                          f"fixes; modes {modes}"]
             if c.get("outage"):
                 o = c["outage"]
                 lines.append(f"outage: {o['frames']} frames from t = {o['start_s']:.2f} s to "

@@ -75,6 +75,7 @@ from adfusion.basilisk.msgio import author, live_view, setters
 from adfusion.basilisk.nav import AdfusionNav
 from adfusion.logs import LogWriter
 from adfusion.maths import rotations as rot
+from adfusion.plain import listed
 from adfusion.sensors.render import SensorModel
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.catalog.stars import Catalog
@@ -165,7 +166,8 @@ def scenario(name: str, **overrides: Any) -> AcsConfig:
     (120.0, 60.0)
     """
     if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; choose one of {sorted(SCENARIOS)}")
+        raise ValueError(f"unknown scenario {name!r}; choose one of "
+                         f"{listed(sorted(SCENARIOS), None)}")
     return replace(SCENARIOS[name], **overrides)
 
 
@@ -361,7 +363,7 @@ def run_loop(cfg: AcsConfig, loop: str = "adfusion", seed: int = 0, *,
     :mod:`adfusion.basilisk.log` for ``images`` and ``preview_every``).
     """
     if loop not in LOOPS:
-        raise ValueError(f"loop must be one of {LOOPS}, got {loop!r}")
+        raise ValueError(f"loop must be one of {listed(LOOPS, None)}, got {loop!r}")
     use_camera = (loop == "adfusion") if camera_in_sim is None else bool(camera_in_sim)
     ss = np.random.SeedSequence(entropy=int(seed), spawn_key=(19,))
     s_imu, s_st, s_tam, s_cam, s_init = (int(x) for x in ss.generate_state(5))

@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from adfusion.maths import rotations as rot
 from adfusion.maths.attitude import wahba
+from adfusion.plain import listed
 
 __all__ = ["CAMERA_TERMS", "CameraFit", "CameraModelFit", "fit_camera", "fit_camera_model"]
 
@@ -224,9 +225,11 @@ def fit_camera_model(
     terms = tuple(terms)
     bad = set(terms) - set(CAMERA_TERMS)
     if bad:
-        raise ValueError(f"unknown camera terms {sorted(bad)}; choose from {CAMERA_TERMS}")
+        raise ValueError(f"unknown camera terms {listed(sorted(bad), None)}; choose from "
+                         f"{listed(CAMERA_TERMS, None)}")
     if n_stars * 2 < _n_params(terms) + 3 * len(data):
-        raise ValueError(f"{n_stars} stars cannot fit {terms} and {len(data)} attitude(s)")
+        raise ValueError(f"{n_stars} stars cannot fit the terms {listed(terms, None)} and "
+                         f"{len(data)} attitude(s)")
     return _fit_model(data, camera, terms, q0)[0]
 
 

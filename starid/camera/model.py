@@ -36,6 +36,8 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from adfusion.plain import listed
+
 __all__ = ["Camera", "yee_separation_rad"]
 
 Model = Literal["pinhole", "equidistant", "linear_angle"]
@@ -83,7 +85,8 @@ class Camera:
                 f"D must hold 0, 4, 5, 8 or 12 finite OpenCV coefficients, got {d.size}"
             )
         if self.model not in _MODELS:
-            raise ValueError(f"model must be one of {_MODELS}, got {self.model!r}")
+            raise ValueError(f"model must be one of {listed(_MODELS, None)}, got "
+                             f"{self.model!r}")
         if self.model != "pinhole" and np.any(d != 0):
             raise ValueError(f"distortion coefficients are only supported by 'pinhole', "
                              f"not {self.model!r}")

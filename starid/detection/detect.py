@@ -56,6 +56,8 @@ from adfusion.starid.detection.detections import _CENTROIDS, Detections
 from adfusion.starid.detection.image import _all_finite, _as_grey
 from adfusion.starid.detection.measure import _label, _measure
 
+from adfusion.plain import listed
+
 __all__ = ["detect"]
 
 
@@ -81,7 +83,8 @@ def _check_params(
     if background_block < 4:
         raise ValueError(f"background_block must be >= 4 pixels, got {background_block!r}")
     if centroid not in _CENTROIDS:
-        raise ValueError(f"centroid must be one of {_CENTROIDS}, got {centroid!r}")
+        raise ValueError(f"centroid must be one of {listed(_CENTROIDS, None)}, got "
+                         f"{centroid!r}")
     for name, v in (("max_bright_pixels", max_bright_pixels), ("max_detections", max_detections)):
         if v is not None and v < 0:
             raise ValueError(f"{name} must be >= 0 or None, got {v!r}")

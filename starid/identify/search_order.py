@@ -123,7 +123,7 @@ def patterns(n_det: int, n_min: int, n_max: int) -> Iterator[tuple[tuple[int, ..
 
     Example:
         >>> [path for _, path in itertools.islice(patterns(6, 3, 4), 3)]
-        ['n=4', 'not-modus 3-of-4 [0, 1, 2]', 'not-modus 3-of-4 [0, 1, 3]']
+        ['n=4', 'not-modus 3-of-4: 0, 1, 2', 'not-modus 3-of-4: 0, 1, 3']
     """
     seen: set[tuple[int, ...]] = set()
     yield from renken_patterns(n_det, n_min, n_max, seen)
@@ -133,12 +133,12 @@ def patterns(n_det: int, n_min: int, n_max: int) -> Iterator[tuple[tuple[int, ..
     if n_min <= 3:
         for pat in combination_order(n_det, list(seen)):
             if _fresh(pat, seen, n_min):
-                yield pat, f"combination {list(pat)}"
+                yield pat, f"combination: {', '.join(map(str, pat))}"
     for last in range(3, n_det):
         for head in itertools.combinations(range(last), 3):
             pat = (*head, last)
             if _fresh(pat, seen, n_min):
-                yield pat, f"combination {list(pat)}"
+                yield pat, f"combination: {', '.join(map(str, pat))}"
 
 
 def renken_patterns(n_det: int, n_min: int, n_max: int, seen: set[tuple[int, ...]],
@@ -160,7 +160,7 @@ def renken_patterns(n_det: int, n_min: int, n_max: int, seen: set[tuple[int, ...
         for keep in sorted(itertools.combinations(base, k), key=lambda c: sorted(
                 set(base) - set(c), reverse=True), reverse=True):
             if _fresh(keep, seen, n_min):
-                yield keep, f"not-modus {k}-of-{n} {list(keep)}"
+                yield keep, f"not-modus {k}-of-{n}: {', '.join(map(str, keep))}"
     for extra in range(n, min(n_det, 2 * n)):  # the next n fainter detections
         for out in reversed(base):
             pat = tuple(sorted((set(base) - {out}) | {extra}))

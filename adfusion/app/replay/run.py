@@ -38,6 +38,7 @@ from adfusion.app.replay.sinks import (
     Sink,
     SmootherSink,
     SummarySink,
+    end_sinks,
 )
 from adfusion.app.replay.sources import Source
 from adfusion.app.replay.stages import (
@@ -404,14 +405,7 @@ def run(source: Source, sinks: Sequence[Sink], options: ReplayOptions | None = N
             failure = exc
             raise
         finally:
-            reason = None if failure is None else (
-                f"{type(failure).__name__}: {failure}" if str(failure)
-                else type(failure).__name__)
-            for sink in reversed(opened):
-                if reason is not None and hasattr(sink, "abort"):
-                    sink.abort(reason)
-                elif reason is None:
-                    sink.close()
+            end_sinks(opened, failure)
         return r
     finally:
         collection.restore()
@@ -503,9 +497,10 @@ def replay(
         if compression == "auto":
             compression = "none" if source.has_images else "lz4"
         log = LogSink(out_path, compression)
-        sinks: list[Sink] = [log]
-        if layout:
-            sinks.append(LayoutSink(out_path))
+        # the layout first, so closed last: written once the log is complete, never for
+        # a failed run
+        sinks: list[Sink] = [LayoutSink(out_path)] if layout else []
+        sinks.append(log)
         if smooth:
             sinks.append(SmootherSink(log, summary, smooth_mode))
         sinks.append(SummarySink(summary, t_start=t_start))

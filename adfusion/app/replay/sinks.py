@@ -36,6 +36,7 @@ from adfusion.app.replay.stages import FRAME, GYRO, MAG, TRUTH, Step
 from adfusion.estimation.estimator import StepRecord
 from adfusion.logs import LogWriter, Message, topics
 from adfusion.maths import rotations as rot
+from adfusion.plain import listed, printable
 from adfusion.starid.camera.model import Camera
 from adfusion.starid.solver import Solver
 
@@ -51,9 +52,11 @@ __all__ = [
     "ReplaySummary",
     "Sink",
     "SmootherSink",
+    "StreamCounter",
     "SummarySink",
     "attitude_deg",
     "attitude_error",
+    "end_sinks",
     "view_radius",
 ]
 
@@ -119,12 +122,13 @@ class ReplaySummary:
             d.update(error_rms_deg=float(np.sqrt(np.mean(e**2))), error_max_deg=float(e.max()),
                      error_p95_deg=float(np.percentile(e, 95)))
         d["frames_per_s"] = self.frames / self.wall_s if self.wall_s else None
-        return d
+        return _printable(d)  # names that are not UTF-8 as \\xNN: strict JSON (--json)
 
     def __str__(self) -> str:
         d = self.as_dict()
+        modes = listed((f"{m} {n}" for m, n in self.modes.items()), None)
         lines = [f"frames {self.frames}, identified {self.identified} "
-                 f"({100 * self.identified / max(self.frames, 1):.1f} %), modes {self.modes}, "
+                 f"({100 * self.identified / max(self.frames, 1):.1f} %), modes {modes}, "
                  f"rejected fixes {self.rejected_fixes}"]
         if self.not_identified:  # every frame without an accepted fix, by reason
             lines.append(f"not identified: {sum(self.not_identified.values())} frame(s) — "
@@ -164,18 +168,108 @@ class ReplaySummary:
                      if self.setup_s > 2.0 else "")
             lines.append(f"{d['frames_per_s']:.1f} frames/s end to end ({self.wall_s:.1f} s"
                          f"{setup})")
-        if self.streams:
-            lines.append("streams: " + "; ".join(
-                f"{kind} {int(v['messages'])}"
-                + (f" ({int(v['used'])} used)" if v["used"] != v["messages"] else "")
-                + f", {v['first_s']:.6g}–{v['last_s']:.6g} s"
-                for kind, v in self.streams.items()))
-        if self.frames_without_gyro:
-            lines.append(f"frames without the gyro (outage): {self.frames_without_gyro} of "
-                         f"{self.frames}")
+        lines += streams_lines(self.streams, self.frames_without_gyro, self.frames)
         lines += [f"input problem: {p}" for p in (self.problems or
                                                   ([self.problem] if self.problem else []))]
-        return "\n".join(lines)
+        return printable("\n".join(lines))  # a name that is not UTF-8 as \\xNN
+
+
+def _printable(value: Any) -> Any:
+    """``value`` with every string and key :func:`~adfusion.plain.printable`."""
+    if isinstance(value, str):
+        return printable(value)
+    if isinstance(value, dict):
+        return {printable(k) if isinstance(k, str) else k: _printable(v)
+                for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return type(value)(_printable(v) for v in value)
+    return value
+
+
+def streams_lines(streams: dict[str, dict[str, float]], frames_without_gyro: int = 0,
+                  frames: int = 0) -> list[str]:
+    """How much of each input stream a run had and used, as the replay's summary and
+    ``adfusion report`` say it (from :attr:`ReplaySummary.streams`, or the output's
+    ``streams`` metadata that :class:`LogSink` records).
+
+    >>> streams_lines({"frame": {"messages": 3, "used": 3, "first_s": 0.0, "last_s": 0.2},
+    ...                "gyro": {"messages": 30, "used": 28, "first_s": 0.0, "last_s": 0.29}},
+    ...               1, 3)  # doctest: +NORMALIZE_WHITESPACE
+    ['streams: frame 3, 0–0.2 s; gyro 30 (28 used), 0–0.29 s',
+     'frames without the gyro (outage): 1 of 3']
+    """
+    lines = []
+    if streams:
+        lines.append("streams: " + "; ".join(
+            f"{kind} {int(v['messages'])}"
+            + (f" ({int(v['used'])} used)" if v["used"] != v["messages"] else "")
+            + f", {v['first_s']:.6g}–{v['last_s']:.6g} s"
+            for kind, v in streams.items()))
+    if frames_without_gyro:
+        lines.append(f"frames without the gyro (outage): {frames_without_gyro} of {frames}")
+    return lines
+
+
+class StreamCounter:
+    """Counts each input stream of a run (``frame``, ``gyro``, ``mag``): messages, how many
+    were used, first and last time (s) — :attr:`ReplaySummary.streams` — and the frames met
+    while the gyro was out (past its age limit). :class:`SummarySink` and :class:`LogSink`
+    each hold one, so the summary and the output's ``streams`` metadata say the same."""
+
+    def __init__(self, streams: dict[str, dict[str, float]] | None = None) -> None:
+        self.streams = streams if streams is not None else {}
+        self.frames = 0
+        self.frames_without_gyro = 0
+
+    def take(self, step: Step, estimator: Any = None) -> None:
+        """Count ``step`` (other kinds than the streams' are not counted)."""
+        if step.kind not in _STREAMS:
+            return
+        t = float(step.msg.t_s)
+        v = self.streams.setdefault(step.kind, {"messages": 0, "used": 0,
+                                                "first_s": t, "last_s": t})
+        v["messages"] += 1
+        v["used"] += bool(step.used or step.kind == FRAME)
+        v["first_s"], v["last_s"] = min(v["first_s"], t), max(v["last_s"], t)
+        if step.kind == FRAME and step.record is not None:
+            self.frames += 1
+            if (estimator is not None and estimator.without_gyro
+                    and not estimator.video_only):
+                self.frames_without_gyro += 1
+
+    def metadata(self) -> dict[str, Any]:
+        """The output's ``streams`` metadata record: one entry per stream, and
+        ``frames_without_gyro`` (with ``frames``) when the gyro was ever out."""
+        out: dict[str, Any] = {kind: dict(v) for kind, v in self.streams.items()}
+        if self.frames_without_gyro:
+            out["frames_without_gyro"] = self.frames_without_gyro
+            out["frames"] = self.frames
+        return out
+
+
+def _why(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+
+
+def end_sinks(opened: list[Any], failure: BaseException | None) -> None:
+    """End a run's ``opened`` sinks (:func:`adfusion.app.replay.run.run`): close them in
+    reverse order — or, after a ``failure``, abort those that can be (the log is closed
+    marked incomplete). A sink whose close fails makes it a failed run for the sinks still
+    open (each is ended all the same: no temporary file or lock is left behind), and its
+    error is raised after them; after a ``failure``, that failure is the one raised."""
+    reason = None if failure is None else _why(failure)
+    raised: BaseException | None = None
+    for sink in reversed(opened):
+        try:
+            if reason is None:
+                sink.close()
+            elif hasattr(sink, "abort"):
+                sink.abort(reason)
+        except BaseException as exc:
+            if reason is None:
+                reason, raised = _why(exc), exc
+    if raised is not None:
+        raise raised
 
 
 class LogSink:
@@ -196,14 +290,23 @@ class LogSink:
         self.multi = False
         self.mounts: list[tuple] = []
         self.run: Run | None = None
+        self.streams = StreamCounter()  # recorded as the output's `streams` metadata
 
     def open(self, run: Run) -> None:
         self.q_body_cam = run.q_body_cam
         self.estimator = run.estimator
         self.run = run
         # written under a temporary name, renamed when complete (LogWriter atomic)
-        self.log = log = LogWriter(self.path, compression=self.compression,
-                                   start_utc=run.start_utc, atomic=True)
+        self.log = LogWriter(self.path, compression=self.compression,
+                             start_utc=run.start_utc, atomic=True)
+        try:
+            self._start(run)
+        except BaseException as exc:  # not opened, so never closed: end the log here
+            self.abort(_why(exc))
+            raise
+
+    def _start(self, run: Run) -> None:
+        log = self.log
         log.add_metadata("replay", run.replay_metadata)
         if run.assumptions:
             log.add_metadata("assumptions", run.assumptions)
@@ -227,6 +330,7 @@ class LogSink:
 
     def take(self, step: Step) -> None:
         kind, msg = step.kind, step.msg
+        self.streams.take(step, self.estimator)
         if kind == FRAME and step.record is not None:
             if isinstance(msg.payload, np.ndarray):
                 if msg.raw is not None:  # a foxglove.RawImage: copied as read
@@ -250,6 +354,8 @@ class LogSink:
             self.log.write_tf(msg.t_s, [("icrs", "body_truth", q_icrs_body, (0.0, 0.0, 0.0))])
 
     def _problems(self) -> None:
+        if self.streams.streams:
+            self.log.add_metadata("streams", self.streams.metadata())
         if self.run is not None:
             problems = self.run.problem_lines()
             if problems:
@@ -262,11 +368,12 @@ class LogSink:
             self.log.close()
 
     def abort(self, reason: str) -> None:
-        """The run failed: the output is closed marked ``incomplete`` (reason)."""
+        """The run failed: the output is closed marked ``incomplete`` (reason) — or, when
+        even that fails, removed; never left as a temporary file and a lock."""
         if self.log is not None:
             try:
                 self._problems()
-            except OSError:
+            except Exception:  # the run's own failure is the one to raise
                 pass
             self.log.abort(reason)
 
@@ -352,7 +459,11 @@ class LayoutSink:
     """A Foxglove layout beside the output, ``OUT.layout.json``
     (:func:`adfusion.app.layout.foxglove_layout`): the image with its annotations, a 3D view
     of the body, camera and truth frames in ``icrs``, plots of the attitude error with its
-    3σ bounds, the NIS, the stars per frame and the star-ID mode."""
+    3σ bounds, the NIS, the stars per frame and the star-ID mode.
+
+    Written when the run closes, and only then: a failed run (:meth:`abort`) leaves its
+    output marked ``incomplete`` and nothing else. Given before the :class:`LogSink` in a
+    run's sinks it is closed after it, so the layout comes once the log is complete."""
 
     def __init__(self, out_path) -> None:
         self.path = self.path_for(out_path)
@@ -370,6 +481,12 @@ class LayoutSink:
         return out.with_name(out.stem + ".layout.json")
 
     def open(self, run: Run) -> None:
+        pass
+
+    def take(self, step: Step) -> None:
+        pass
+
+    def close(self) -> None:
         import json
 
         from adfusion.app.layout import foxglove_layout
@@ -377,11 +494,8 @@ class LayoutSink:
 
         write_atomic(self.path, json.dumps(foxglove_layout(truth=True), indent=2))
 
-    def take(self, step: Step) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
+    def abort(self, reason: str) -> None:
+        """The run failed: no layout (the output it would open is incomplete)."""
 
 
 def attitude_deg(t: float, q_body_icrs, sigma_rad, mode: str | None = None,
@@ -427,6 +541,7 @@ class SummarySink:
     def __init__(self, summary: ReplaySummary | None = None, *,
                  t_start: float | None = None) -> None:
         self.summary = summary if summary is not None else ReplaySummary()
+        self.streams = StreamCounter(self.summary.streams)
         self.in_view: InViewCounter | None = None
         self.t_start = t_start
         self.primary = 0
@@ -441,15 +556,12 @@ class SummarySink:
         self.frames: list[tuple[float, bool, Any, Any, bool]] = []
 
     def take(self, step: Step) -> None:
-        if step.kind in _STREAMS:
-            self._count(step)
+        self.streams.take(step, self.run.estimator)
         if step.kind != FRAME or step.record is None:
             return
         s, rec = self.summary, step.record
         s.frames += 1
-        est = self.run.estimator
-        if est.without_gyro and not est.video_only:
-            s.frames_without_gyro += 1
+        s.frames_without_gyro = self.streams.frames_without_gyro
         sol = rec.solution
         if sol is not None:
             s.modes[sol.mode] = s.modes.get(sol.mode, 0) + 1
@@ -473,14 +585,6 @@ class SummarySink:
         self.frames.append((rec.t, bool(rec.fix_accepted), rec.q_body_icrs, sigma,
                             step.head == self.primary))
 
-    def _count(self, step: Step) -> None:
-        t = float(step.msg.t_s)
-        v = self.summary.streams.setdefault(step.kind, {"messages": 0, "used": 0,
-                                                        "first_s": t, "last_s": t})
-        v["messages"] += 1
-        v["used"] += bool(step.used or step.kind == FRAME)
-        v["first_s"], v["last_s"] = min(v["first_s"], t), max(v["last_s"], t)
-
     def close(self) -> None:
         s = self.summary
         track = self.run.truth.track if self.run is not None else None
@@ -497,7 +601,7 @@ class SummarySink:
         if self.in_view is not None:
             self.in_view.count_into(s)
         if self.run is not None:
-            s.problems = self.run.problem_lines()
+            s.problems = [printable(p) for p in self.run.problem_lines()]
             s.dropped = dict(self.run.problems.dropped)
             s.problem = s.problems[0] if s.problems else ""
 

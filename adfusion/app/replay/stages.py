@@ -29,6 +29,7 @@ import numpy as np
 from adfusion.estimation.estimator import Estimator, StepRecord
 from adfusion.logs import Message, topics
 from adfusion.maths import rotations as rot
+from adfusion.plain import listed
 from adfusion.starid.camera.model import Camera
 
 __all__ = ["DetectAhead", "EstimationStage", "InputProblems", "Step", "TruthStage", "TruthTrack"]
@@ -102,7 +103,8 @@ def _field(payload: Any, key: str, topic: str) -> Any:
         raise ValueError(f"{topic}: payload is a {type(payload).__name__}, not an object "
                          f"with {key!r}")
     if key not in payload:
-        raise ValueError(f"{topic}: payload has no {key!r} (has {sorted(payload)[:6]})")
+        raise ValueError(f"{topic}: payload has no {key!r} (has "
+                         f"{listed(sorted(map(str, payload)), 6)})")
     return payload[key]
 
 
