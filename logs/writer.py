@@ -327,6 +327,8 @@ class LogWriter:
         self._json_schemas: dict[str, tuple[str, dict[str, Any]]] = dict(JSON_SCHEMAS)
         self._proto_schemas: dict[str, int] = {}
         self._closed = False
+        #: the log is complete at :attr:`path` (closed; with ``atomic``, renamed there)
+        self.written = False
         self.message_count = 0
 
     # ------------------------------------------------------------------ plumbing
@@ -358,6 +360,7 @@ class LogWriter:
                 self._file.close()
             if self.partial_path != self.path:
                 os.replace(self.partial_path, self.path)
+            self.written = True
         except BaseException:
             if self.partial_path != self.path:
                 with contextlib.suppress(OSError):

@@ -46,7 +46,12 @@ from scipy.spatial import cKDTree
 
 from adfusion.maths import rotations as rot
 
-__all__ = ["DEFAULT_TERMS", "JointCalibration", "calibrate_frames"]
+__all__ = ["DEFAULT_TERMS", "JointCalibration", "NoFrameIdentified", "calibrate_frames"]
+
+
+class NoFrameIdentified(ValueError):
+    """None of the frames given to :func:`calibrate_frames` could be identified (the
+    message says why, frame by frame): nothing to fit."""
 
 #: What ``adfusion calibrate`` fits by default: focal length, principal point, and OpenCV
 #: radial k1, k2 and tangential p1, p2.
@@ -113,7 +118,7 @@ def calibrate_frames(
         cams.append(sol.camera)
         used.append(k)
     if not used:
-        raise ValueError("no frame could be identified: "
+        raise NoFrameIdentified("no frame could be identified: "
                          + "; ".join(f"frame {k}: {r}" for k, r in failed.items()))
     # start from the median focal length of the frames' own solutions
     scale = float(np.median([c.K[0, 0] for c in cams])) / camera.K[0, 0]

@@ -150,6 +150,6 @@ def test_solve_and_replay_refuse_the_same_bad_file_alike(tmp_path, frames, capsy
     for command, argv in _commands(tmp_path, frames, camera).items():
         code = main(argv)
         err = capsys.readouterr().err.strip().splitlines()
-        assert code == 1 and len(err) == 1, (command, code, err)
+        assert code == 2 and len(err) == 1, (command, code, err)  # unusable input
         assert err[0].endswith(f"--camera {camera}: width: 64.5 is not an integer (pixels)"), (
             command, err)

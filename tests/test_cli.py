@@ -76,7 +76,8 @@ def test_camera_and_fov_together_is_a_usage_error(capsys, tmp_path):
 
 def test_an_undecodable_image_is_one_line_on_stderr(tmp_path):
     """OpenCV's own log lines (`[ERROR:0@1.1] global grfmt_png.cpp …`) went to the terminal
-    ahead of our message: a broken image is one line on the process's stderr, exit 1."""
+    ahead of our message: a broken image is one line on the process's stderr, exit 2 (an
+    input that cannot be used: nothing done)."""
     import os
     import subprocess
     import sys
@@ -86,7 +87,7 @@ def test_an_undecodable_image_is_one_line_on_stderr(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "OPENCV_LOG_LEVEL"}
     p = subprocess.run([sys.executable, "-P", "-m", "adfusion.app.cli", "solve", str(bad),
                         "--fov", "10"], capture_output=True, text=True, timeout=120, env=env)
-    assert p.returncode == 1
+    assert p.returncode == 2
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "broken.png" in lines[0], p.stderr
 
@@ -196,6 +197,7 @@ def test_a_fov_error_beyond_the_field_of_view_names_the_flag(capsys, tmp_path):
 def test_every_option_has_help_and_says_its_default():
     """``--method`` had no help, ``--sigma`` did not say its default (new-user trial)."""
     import argparse
+    import re
 
     from adfusion.app.cli import build_parser
 
@@ -215,6 +217,12 @@ def test_every_option_has_help_and_says_its_default():
               if a.option_strings and a.default not in (None, False, True, argparse.SUPPRESS)
               and "default" not in a.help]
     assert silent == []
+    # an option without a default says what happens without it (the flags of a folder
+    # replay did not: --fps, --timestamps, --start-utc, --mount, --imu)
+    unsaid = [(cmd, a.dest) for cmd, a in found
+              if a.option_strings and a.default is None and a.nargs != 0 and not a.required
+              and not re.search(r"\b(default|without)\b", a.help, re.IGNORECASE)]
+    assert unsaid == []
     import subprocess
     import sys
 

@@ -117,7 +117,7 @@ def test_a_changed_calibration_is_refused(sim, tmp_path, capsys):
     bad2 = tmp_path / "fx.mcap"
     bad2.write_bytes(data[:j] + (b"9" if data[j:j + 1] != b"9" else b"8") + data[j + 1:])
     assert _read(bad2).camera_model() is None
-    assert main(["replay", str(bad2), "-o", str(tmp_path / "o2.mcap")]) == 1
+    assert main(["replay", str(bad2), "-o", str(tmp_path / "o2.mcap")]) == 2
     assert "no camera model" in capsys.readouterr().err
 
 
@@ -126,7 +126,7 @@ def test_a_log_without_config_is_an_error_naming_the_flag(sim, tmp_path, capsys)
     bare = copy_log(sim, tmp_path / "bare.mcap", config=None)
     with pytest.raises(ValueError, match=r"no 'config' metadata.*--config.*--assume-defaults"):
         replay(bare, tmp_path / "o.mcap", progress=False)
-    assert main(["replay", str(bare), "-o", str(tmp_path / "o.mcap")]) == 1
+    assert main(["replay", str(bare), "-o", str(tmp_path / "o.mcap")]) == 2
     assert "--config" in capsys.readouterr().err
     # the configuration given on the command line: the same result as the original log
     cfg = tmp_path / "config.json"
@@ -319,10 +319,10 @@ def test_cli_failures_are_one_line_with_exit_codes(sim, tmp_path, capsys):
         (["replay", str(sim), "-o", str(tmp_path)], 2, "is a folder"),
         # a folder is an input (of images): without frame times it names the flag
         (["replay", str(tmp_path), "-o", str(tmp_path / "o.mcap")], 2, "give --fps"),
-        (["replay", str(afile), "-o", str(tmp_path / "o.mcap")], 1, "not an MCAP file"),
+        (["replay", str(afile), "-o", str(tmp_path / "o.mcap")], 2, "not an MCAP file"),
         (["report", str(sim), "-o", str(afile)], 2, "not a folder"),
         (["simulate", "leo", "-o", str(tmp_path / "x.mcap"), "--duration", "1e9",
-          "--no-render"], 1, "out of memory"),
+          "--no-render"], 2, "out of memory"),  # a request too large: usage
         (["solve", "--example", "--mag-limit", "-5"], 2, "brighter than every star"),
         (["solve", "--example", "--overlay", str(tmp_path / "o.txt")], 2, "image file name"),
         (["simulate", "leo", "-o", str(tmp_path / "none" / "x.mcap")], 2, "does not exist"),

@@ -41,7 +41,7 @@ def test_timestamps_that_cannot_be_true_are_refused(tmp_path, capsys, rows, why)
     code = main(["replay", str(folder), "--timestamps", str(stamps), "--fov", "10",
                  "--assume-defaults", "-o", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 1 and len(err) == 1 and err[0].count("--timestamps") == 1, err
+    assert code == 2 and len(err) == 1 and err[0].count("--timestamps") == 1, err
     assert why in err[0] and not out.exists()
 
 
@@ -115,6 +115,6 @@ def test_a_timestamps_csv_that_names_none_of_the_frames_is_refused(tmp_path, cap
                                          r"img_0002\.png"):
         ImageFolderSource(folder, timestamps_csv=stamps)
     assert main(["replay", str(folder), "--timestamps", str(stamps), "--fov", "10",
-                 "-o", str(tmp_path / "out.mcap")]) == 1
+                 "-o", str(tmp_path / "out.mcap")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].count("--timestamps") == 1, err

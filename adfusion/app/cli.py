@@ -40,7 +40,7 @@ from adfusion.app.commands.replay import cmd_replay
 from adfusion.app.commands.report import cmd_report
 from adfusion.app.commands.simulate import cmd_simulate
 from adfusion.app.commands.solve import cmd_solve
-from adfusion.app.errors import UsageError
+from adfusion.app.errors import UsageError, exit_code, incomplete_output
 from adfusion.outfiles import OutputBusy, OutputClash
 
 
@@ -72,11 +72,13 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    help="render and solve the built-in synthetic example frame")
     s.add_argument("--fov", metavar="DEG|LO:HI",
                    help="horizontal field of view, degrees: an estimate (12, with "
-                        "--fov-error) or a range LO:HI (8:16; the camera is then fitted)")
+                        "--fov-error) or a range LO:HI (8:16; the camera is then fitted); "
+                        "without it, --camera is needed")
     s.add_argument("--fov-error", type=non_negative_float, default=0.0,
                    help="± uncertainty of --fov, degrees (default 0: known)")
     s.add_argument("--camera", metavar="YAML",
-                   help="OpenCV camera file (e.g. from `adfusion calibrate`) instead of --fov")
+                   help="OpenCV camera file (e.g. from `adfusion calibrate`) instead of --fov "
+                        "(without it: a pinhole camera of the image's size and --fov)")
     s.add_argument("--mag-limit", type=magnitude_limit, default=6.5,
                    help="catalogue limit, estimated Johnson V (default 6.5)")
     s.add_argument("--stars-per-fov", type=int, default=None,
@@ -90,9 +92,11 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     s.add_argument("--sigma", type=positive_float, default=5.0,
                    help="detection threshold, sigmas")
     s.add_argument("--overlay", metavar="PNG", type=image_path,
-                   help="write an overlay image (one image only; .png, .jpg, .tif, ...)")
+                   help="write an overlay image (one image only; .png, .jpg, .tif, ...; "
+                        "default: none)")
     s.add_argument("-o", "--out-dir", metavar="DIR",
-                   help="write <image>.json per image here (and .wcs / .corr if asked)")
+                   help="write <image>.json per image here (and .wcs / .corr if asked; "
+                        "without it: printed only, .wcs / .corr into .)")
     s.add_argument("--wcs", action="store_true",
                    help="write <image>.wcs: FITS TAN-SIP header (into --out-dir, default .)")
     s.add_argument("--corr", action="store_true",
@@ -103,7 +107,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     ca = sub.add_parser("cache", help="the on-disk cache of catalogues and pattern indexes")
     ca.add_argument("action", choices=["info", "clear"],
                     help="info: where the cache is and what it holds; clear: empty it")
-    ca.add_argument("--kind", help="clear only entries of this kind (e.g. pattern-index)")
+    ca.add_argument("--kind", help="clear only entries of this kind (e.g. pattern-index; "
+                    "default: every kind)")
     ca.add_argument("--json", action="store_true", help="print JSON instead of text")
     ca.set_defaults(func=cmd_cache)
 
@@ -114,10 +119,12 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     cb.add_argument("-o", "--output", required=True, metavar="YAML",
                     help="camera file to write (accepted by --camera)")
     cb.add_argument("--fov", metavar="DEG|LO:HI",
-                    help="horizontal field of view, degrees: an estimate or a range LO:HI")
+                    help="horizontal field of view, degrees: an estimate or a range LO:HI "
+                         "(without it, --camera is needed)")
     cb.add_argument("--fov-error", type=float, default=None,
                     help="± uncertainty of --fov, degrees (default 5 %% of the FOV)")
-    cb.add_argument("--camera", metavar="YAML", help="starting camera instead of --fov")
+    cb.add_argument("--camera", metavar="YAML", help="starting camera instead of --fov "
+                    "(without it: a pinhole camera of the frames' size and --fov)")
     cb.add_argument("--mag-limit", type=float, default=7.5,
                     help="catalogue limit for the fit's stars (default 7.5)")
     cb.add_argument("--epoch", type=float, default=None,
@@ -142,8 +149,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     sm.add_argument("--no-render", action="store_true",
                     help="write star centroids instead of rendered images (fast)")
     sm.add_argument("--ros2", metavar="DIR", help="also write the flight as a ROS 2 bag "
-                    "(rosbag2 folder, MCAP storage; Image + CameraInfo + Imu + "
-                    "MagneticField) with rosbags")
+                    "(a rosbag2 folder, MCAP storage; Image + CameraInfo + Imu + "
+                    "MagneticField) with rosbags; default: the MCAP log only)")
     sm.set_defaults(func=cmd_simulate)
 
     rp = sub.add_parser(
@@ -156,24 +163,29 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     rp.add_argument("-o", "--output", required=True, help="output .mcap")
     g = rp.add_argument_group("input")
     g.add_argument("--imu", metavar="FILE", help="gyro/magnetometer samples: CSV (t_s, "
-                   "gyro_x..z rad/s, mag_x..z nT) or a PX4 ULog (.ulg)")
+                   "gyro_x..z rad/s, mag_x..z nT) or a PX4 ULog (.ulg); without it: the "
+                   "input's own, else the frames alone (the filter estimates the rate)")
     g.add_argument("--imu-offset", type=finite_float, default=0.0, metavar="S",
                    help="seconds added to every gyro and magnetometer time, to put the IMU's "
                         "clock on the frames' (the replay's 'gyro clock' problem says by how "
                         "much)")
     g.add_argument("--camera", metavar="FILE", help="camera model: OpenCV camera YAML, ROS "
-                   "camera_info YAML, or camera.json")
+                   "camera_info YAML, or camera.json (without it: the input's, else --fov)")
     g.add_argument("--fov", metavar="DEG|LO:HI", help="horizontal field of view (a "
                    "pinhole camera of the frame size) when there is no camera model: degrees "
-                   "or a range LO:HI, searched for lost-in-space")
+                   "or a range LO:HI, searched for lost-in-space (without it: the input's "
+                   "camera model or --camera)")
     g.add_argument("--fps", type=positive_float, help="frame rate of a folder or video (frame i at "
-                   "i/fps s)")
+                   "i/fps s; without it: --timestamps, the times in the file names, or the "
+                   "video's own rate)")
     g.add_argument("--timestamps", metavar="CSV", help="frame times of a folder: CSV with "
-                   "columns filename,t_s")
+                   "columns filename,t_s (without it: --fps or the times in the file names)")
     g.add_argument("--start-utc", metavar="TIME", help="UTC time of t = 0 (ISO 8601, e.g. "
-                   "1995-11-07T08:07:00Z): log times in UTC")
+                   "1995-11-07T08:07:00Z): log times in UTC (without it: the input's or "
+                   "its file names', else times from 0 s; export then asks for it)")
     g.add_argument("--mount", metavar="W,X,Y,Z", help="camera mounting q_body_cam (rotates "
-                   "camera vectors into the body frame), scalar first")
+                   "camera vectors into the body frame), scalar first (without it: the "
+                   "input's configuration, --config, or --assume-defaults' identity)")
     g.add_argument("--exposure", type=float, metavar="S", help="camera exposure, seconds "
                    "(tracking models the motion smear; default: the log's)")
     g.add_argument("--gyro-arw", type=float, metavar="RAD/√S", help="gyro angle random walk "
@@ -187,7 +199,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     g.add_argument("--mag-topic", help="ROS 2 bag: the MagneticField topic (default: by type)")
     g.add_argument("--config", metavar="JSON",
                    help="the run configuration (q_body_cam, gyro noise, camera, mag_limit) "
-                        "for a log that lacks its config metadata")
+                        "for a log that lacks its config metadata (without it: the log's, "
+                        "else --mount or --assume-defaults)")
     g.add_argument("--assume-defaults", action="store_true",
                    help="replay a log without configuration with an identity camera mount "
                         "and default noise (recorded in the output)")
@@ -216,14 +229,15 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
 
     ex = sub.add_parser("export", help="flight-dynamics products of a replayed log (AEM, CSV)")
     ex.add_argument("log", help="a replayed .mcap")
-    ex.add_argument("--aem", metavar="FILE", help="CCSDS Attitude Ephemeris Message (KVN)")
+    ex.add_argument("--aem", metavar="FILE", help="CCSDS Attitude Ephemeris Message (KVN); "
+                    "default: none (give --aem, --csv or both)")
     ex.add_argument("--csv", metavar="FILE", help="CSV: UTC, quaternion, RA/Dec/roll, 1σ, "
-                    "mode, stars")
+                    "mode, stars; default: none")
     ex.add_argument("--smoothed", action="store_true", help="export /smoothed/state instead "
                     "of the filter's /estimate/state")
     ex.add_argument("--start-utc", metavar="TIME", help="UTC of the log's t = 0 (ISO 8601), "
                     "for a log that does not know it (an acs run, a replay without "
-                    "--start-utc)")
+                    "--start-utc; default: the log's own)")
     ex.set_defaults(func=cmd_export)
 
     tp = sub.add_parser("topics", help="the log topics: schema, fields, units, frame")
@@ -351,24 +365,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     one_line_warnings(f"adfusion {args.command}")
     _PipeGuard.install()
     # One handler for every command: a failure is one line on stderr and an exit code —
-    # 0 success, 1 an input problem reported (the output, if any, says what), 2 usage.
+    # 0 done, 1 done in part, 2 nothing done (usage or an unusable input): errors.exit_code
     try:
         return int(args.func(args) or 0)
-    except (UsageError, FileNotFoundError, OutputClash, OutputBusy) as e:
-        # the command line is wrong: a path that is absent, an output that is an input or
-        # is being written by another run
-        print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
-        return 2
     except BrokenPipeError:  # a write past the guard (not through sys.stdout) met the
         return 0  # closed pipe: the reader asked for no more
     except KeyboardInterrupt:
         print(f"adfusion {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as e:
-        if os.environ.get("ADFUSION_DEBUG"):
+        if os.environ.get("ADFUSION_DEBUG") and not isinstance(e, UsageError | OutputClash
+                                                                 | OutputBusy):
             raise
-        print(f"adfusion {args.command}: error: {describe_error(e)}", file=sys.stderr)
-        return 1
+        said = describe_error(e)
+        out = incomplete_output(e)
+        if out is not None:
+            said += f" ({out} holds what was done before, marked incomplete)"
+        print(f"adfusion {args.command}: error: {said}", file=sys.stderr)
+        return exit_code(e)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -626,7 +626,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local dask worker processes (default: the CPU count; 0: "
                              "serially in this process)")
     parser.add_argument("--scheduler", default=None, metavar="URL",
-                        help="run on an existing dask scheduler, e.g. tcp://host:8786")
+                        help="run on an existing dask scheduler, e.g. tcp://host:8786 "
+                             "(default: local workers, --workers)")
     parser.add_argument("--chunk", type=int, default=d.chunk,
                         help=f"trials per task (default {d.chunk})")
     parser.add_argument("--prior-sigma", type=float, default=d.prior_sigma_deg,
@@ -637,7 +638,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--peer-timeout-ms", type=float, default=d.peer_timeout_ms,
                         help="solve timeout passed to tetra3rs and cedar (default 5000)")
     parser.add_argument("--cache-dir", default=None,
-                        help="where the tetra3rs databases and the cedar venv are kept")
+                        help="where the tetra3rs databases and the cedar venv are kept "
+                             "(default: the adfusion cache, ~/.cache/adfusion)")
     parser.add_argument("--partial", default=None, metavar="PATH",
                         help="JSON-lines file of finished tasks (default: PATH of --json + "
                              "'.partial.jsonl'); an interrupted run resumes from it, a "
@@ -646,9 +648,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the partial file after a complete run (e.g. --quick first, "
                              "then the full grid on top of it)")
     parser.add_argument("--json", default=None, metavar="PATH",
-                        help="write the results as JSON to PATH")
+                        help="write the results as JSON to PATH (default: the table only)")
     parser.add_argument("--plots", default=None, metavar="DIR",
-                        help="write one PNG per sweep into DIR")
+                        help="write one PNG per sweep into DIR (default: none)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

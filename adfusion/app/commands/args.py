@@ -13,7 +13,7 @@ import sys
 from collections.abc import Sequence
 from typing import NoReturn
 
-from adfusion.app.errors import UsageError
+from adfusion.app.errors import PartlyDone, UsageError
 from adfusion.outfiles import OutputClash, refuse_overwrite
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp", ".pgm", ".ppm")
@@ -151,8 +151,9 @@ def describe_error(exc: BaseException) -> str:
         lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
         return "OpenCV: " + (lines[-1] if lines else type(exc).__name__)
     text = " ".join(str(exc).split()) or type(exc).__name__
-    if isinstance(exc, ValueError | KeyError | TypeError | ArithmeticError | LookupError):
-        if isinstance(exc, ValueError):
+    if isinstance(exc, ValueError | KeyError | TypeError | ArithmeticError | LookupError
+                  | PartlyDone):
+        if isinstance(exc, ValueError | PartlyDone):
             return text
         return f"{type(exc).__name__}: {text}"
     return (f"internal error: {type(exc).__name__}: {text} (set ADFUSION_DEBUG=1 for the "

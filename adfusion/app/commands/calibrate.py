@@ -17,7 +17,7 @@ from adfusion.app.commands.args import (
     _outputs_apart,
     parse_fov,
 )
-from adfusion.app.errors import UsageError
+from adfusion.app.errors import PartlyDone, UsageError
 from adfusion.outfiles import atomic_output
 
 
@@ -27,7 +27,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     from adfusion import starid
     from adfusion.starid.camera.files import read_camera_yaml, write_camera_yaml
     from adfusion.starid.detection.image import read_image
-    from adfusion.starid.joint_calibration import calibrate_frames
+    from adfusion.starid.joint_calibration import NoFrameIdentified, calibrate_frames
 
     _camera_or_fov(args)
     paths = _image_paths(args.images)
@@ -63,7 +63,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     deep = starid.Catalog.hipparcos(mag_limit=args.mag_limit, epoch=epoch)
     ident = starid.Catalog.hipparcos(mag_limit=min(args.mag_limit, 6.5), epoch=epoch)
     t0 = time.perf_counter()
-    res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms, **fov_kw)
+    try:
+        res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms, **fov_kw)
+    except NoFrameIdentified as e:  # read, but not identified: exit 1, as solve's
+        raise PartlyDone(str(e)) from None
     cam = res.camera
     with atomic_output(args.output) as tmp:
         write_camera_yaml(cam, tmp,

@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from adfusion.app.errors import UsageError
+from adfusion.app.errors import UsageError, mark_incomplete
 from adfusion.app.replay.stages import FRAME, GYRO, MAG, TRUTH, Step
 from adfusion.estimation.estimator import StepRecord
 from adfusion.logs import LogWriter, Message, topics
@@ -268,6 +268,11 @@ def end_sinks(opened: list[Any], failure: BaseException | None) -> None:
         except BaseException as exc:
             if reason is None:
                 reason, raised = _why(exc), exc
+    ended = failure if failure is not None else raised
+    if ended is not None:  # the output, if it could be finished, holds the run so far
+        for sink in opened:
+            if isinstance(sink, LogSink) and sink.log is not None and sink.log.written:
+                mark_incomplete(ended, sink.path)
     if raised is not None:
         raise raised
 

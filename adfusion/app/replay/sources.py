@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from adfusion.app.errors import UsageError
-from adfusion.imagefiles import decode_frame_bytes, frame_size
+from adfusion.imagefiles import ImageFileError, decode_frame_bytes, frame_size
 from adfusion.logs import (
     ImageFolderSource,
     McapLogReader,
@@ -348,9 +348,10 @@ class FolderInput(_FramesInput):
         self.config = {}
         #: the UTC of t = 0 from the file names, when they give the frames' times
         self.start_utc = self._source.start_utc
-        # the size from the first frame's header (nothing decoded; a cut frame is dropped
-        # when it is read, with the others); a file without a header is no frame folder
-        self._size = frame_size(Path(folder) / self._source.names[0])
+        # the size from the first frame whose header reads (nothing decoded; a frame that
+        # cannot be read is dropped and counted when it is read, with the others); a
+        # folder where no file has an image header is no frame folder
+        self._size = _first_frame_size(Path(folder), self._source.names)
 
     @property
     def problems(self) -> list[str]:
@@ -363,6 +364,19 @@ class FolderInput(_FramesInput):
                          f"dropped unread (first: {dropped[0]})")
         return lines
 
+
+
+def _first_frame_size(folder: Path, names: list[str]) -> tuple[int, int]:
+    """``(width, height)`` of the first of ``names`` whose header reads; the first file's
+    error, with how many others failed, when none does."""
+    first: ImageFileError | None = None
+    for name in names:
+        try:
+            return frame_size(folder / name)
+        except ImageFileError as exc:
+            first = first or exc
+    others = f" (nor any of the other {len(names) - 1} file(s))" if len(names) > 1 else ""
+    raise ImageFileError(f"{first}{others}") from None
 
 
 class VideoInput(_FramesInput):

@@ -196,7 +196,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--methods", default=None, metavar="LIST",
                         help="our matchers to compare, comma-separated subset of nstar, "
                              "triad, bleif (runs these instead of --solvers' 'ours'; the "
-                             "peers only when --solvers names them)")
+                             "peers only when --solvers names them; default: --solvers as given)")
     parser.add_argument("--peer-timeout-ms", type=float, default=d.peer_timeout_ms,
                         help="solve timeout passed to tetra3rs and cedar (default 5000)")
     parser.add_argument("--cache-dir", default=None,
@@ -204,7 +204,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: the adfusion cache, ~/.cache/adfusion)")
     parser.add_argument("--json", nargs="?", const="-", default=None, metavar="PATH",
                         help="write the results as JSON to PATH (or to stdout instead of "
-                             "the table when no PATH is given)")
+                             "the table when no PATH is given; default: the table only)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--hot", type=int, default=0, metavar="N", dest="hot_repeats",
                         help="also solve each frame N more times per in-process solver and "
