@@ -43,11 +43,37 @@ from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 
 __all__ = ["OutputBusy", "OutputClash", "OutputLock", "atomic_output", "files_in",
-           "refuse_overwrite", "same_file", "temp_name", "write_atomic"]
+           "forget_written", "note_written", "refuse_overwrite", "replace_into", "same_file",
+           "temp_name", "write_atomic", "written_outputs"]
 
 PathLike = str | os.PathLike[str]
 
 TEMP_PREFIX = ".adf-"  # temporary outputs and lock files: hidden, short, ours
+_WRITTEN: list[str] = []  # outputs completed since forget_written(): see written_outputs
+
+
+def note_written(path: PathLike) -> None:
+    """Record that the output ``path`` is now complete (renamed into place)."""
+    _WRITTEN.append(os.fspath(path))
+
+
+def written_outputs() -> list[str]:
+    """Every output completed in this process since :func:`forget_written`, in order — so
+    a command that fails after writing some of its outputs can say which (and exit 1, done
+    in part, rather than 2, nothing done).
+
+    >>> import os, tempfile
+    >>> forget_written()
+    >>> p = write_atomic(os.path.join(tempfile.mkdtemp(), "a.txt"), "x")
+    >>> [os.path.basename(w) for w in written_outputs()]
+    ['a.txt']
+    """
+    return list(_WRITTEN)
+
+
+def forget_written() -> None:
+    """Start a new record for :func:`written_outputs` (at the start of each command)."""
+    _WRITTEN.clear()
 
 
 class OutputClash(ValueError):
@@ -84,6 +110,10 @@ def refuse_overwrite(outputs: Iterable[tuple[str, PathLike]],
     """
     outs = [(label, os.fspath(p)) for label, p in outputs if p is not None]
     ins = [os.fspath(p) for p in inputs if p is not None]
+    for label, path in outs:  # found now, not after the work when the rename fails
+        if os.path.isdir(path):
+            raise OutputClash(f"{label} {path} is a folder: give the name of a file to "
+                              "write")
     for k, (label, path) in enumerate(outs):
         for src in ins:
             if same_file(path, src):
@@ -253,7 +283,7 @@ def atomic_output(path: PathLike, *, lock: bool = True) -> Iterator[Path]:
         tmp = temp_name(path)
         try:
             yield tmp
-            os.replace(tmp, path)
+            replace_into(tmp, path)
         except BaseException:
             with contextlib.suppress(OSError):
                 os.unlink(tmp)
@@ -261,6 +291,16 @@ def atomic_output(path: PathLike, *, lock: bool = True) -> Iterator[Path]:
     finally:
         if held is not None:
             held.release()
+
+
+def replace_into(tmp: PathLike, path: PathLike) -> None:
+    """Rename the finished temporary file ``tmp`` over the output ``path`` and record it
+    (:func:`note_written`); a failure names the output, not the temporary file."""
+    try:
+        os.replace(tmp, path)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror, os.fspath(path)) from None
+    note_written(path)
 
 
 def write_atomic(path: PathLike, data: str | bytes, *, lock: bool = True,

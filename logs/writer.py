@@ -50,7 +50,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, IndexType, Writer
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from adfusion.outfiles import OutputLock, temp_name
+from adfusion.outfiles import OutputLock, note_written, replace_into, temp_name
 
 ArrayLike = Any
 
@@ -359,7 +359,9 @@ class LogWriter:
             finally:
                 self._file.close()
             if self.partial_path != self.path:
-                os.replace(self.partial_path, self.path)
+                replace_into(self.partial_path, self.path)
+            else:
+                note_written(self.path)
             self.written = True
         except BaseException:
             if self.partial_path != self.path:

@@ -51,7 +51,12 @@ __all__ = ["DEFAULT_TERMS", "JointCalibration", "NoFrameIdentified", "calibrate_
 
 class NoFrameIdentified(ValueError):
     """None of the frames given to :func:`calibrate_frames` could be identified (the
-    message says why, frame by frame): nothing to fit."""
+    message says why, frame by frame; :attr:`failed` maps each frame's index to its
+    reason): nothing to fit."""
+
+    def __init__(self, message: str, failed: dict[int, str] | None = None) -> None:
+        super().__init__(message)
+        self.failed = dict(failed or {})
 
 #: What ``adfusion calibrate`` fits by default: focal length, principal point, and OpenCV
 #: radial k1, k2 and tangential p1, p2.
@@ -119,7 +124,8 @@ def calibrate_frames(
         used.append(k)
     if not used:
         raise NoFrameIdentified("no frame could be identified: "
-                         + "; ".join(f"frame {k}: {r}" for k, r in failed.items()))
+                                + "; ".join(f"frame {k}: {r}" for k, r in failed.items()),
+                                failed)
     # start from the median focal length of the frames' own solutions
     scale = float(np.median([c.K[0, 0] for c in cams])) / camera.K[0, 0]
     cam = camera.scaled(scale) if abs(scale - 1) > 1e-12 else camera

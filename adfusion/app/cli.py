@@ -41,7 +41,7 @@ from adfusion.app.commands.report import cmd_report
 from adfusion.app.commands.simulate import cmd_simulate
 from adfusion.app.commands.solve import cmd_solve
 from adfusion.app.errors import UsageError, exit_code, incomplete_output
-from adfusion.outfiles import OutputBusy, OutputClash
+from adfusion.outfiles import OutputBusy, OutputClash, forget_written, written_outputs
 
 
 def build_parser(bench: bool = True) -> argparse.ArgumentParser:
@@ -96,7 +96,7 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                         "default: none)")
     s.add_argument("-o", "--out-dir", metavar="DIR",
                    help="write <image>.json per image here (and .wcs / .corr if asked; "
-                        "without it: printed only, .wcs / .corr into .)")
+                        "without it: printed only, or with --wcs / --corr all three into .)")
     s.add_argument("--wcs", action="store_true",
                    help="write <image>.wcs: FITS TAN-SIP header (into --out-dir, default .)")
     s.add_argument("--corr", action="store_true",
@@ -366,23 +366,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     _PipeGuard.install()
     # One handler for every command: a failure is one line on stderr and an exit code —
     # 0 done, 1 done in part, 2 nothing done (usage or an unusable input): errors.exit_code
+    forget_written()
     try:
         return int(args.func(args) or 0)
     except BrokenPipeError:  # a write past the guard (not through sys.stdout) met the
         return 0  # closed pipe: the reader asked for no more
-    except KeyboardInterrupt:
-        print(f"adfusion {args.command}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        out = incomplete_output(e)
+        print(f"adfusion {args.command}: interrupted"
+              + (f" ({out} holds what was done before, marked incomplete)" if out else ""),
+              file=sys.stderr)
         return 130
     except Exception as e:
         if os.environ.get("ADFUSION_DEBUG") and not isinstance(e, UsageError | OutputClash
                                                                  | OutputBusy):
             raise
         said = describe_error(e)
-        out = incomplete_output(e)
+        out, written = incomplete_output(e), written_outputs()
         if out is not None:
             said += f" ({out} holds what was done before, marked incomplete)"
+        elif written:  # done in part: say what is there
+            from adfusion.plain import listed  # numpy: not for --help
+
+            said += f" (written before it: {listed(written)})"
         print(f"adfusion {args.command}: error: {said}", file=sys.stderr)
-        return exit_code(e)
+        return exit_code(e, written)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -29,6 +29,7 @@ Example:
 from __future__ import annotations
 
 import errno
+from collections.abc import Sequence
 from pathlib import Path
 
 __all__ = ["PartlyDone", "UsageError", "exit_code", "incomplete_output", "mark_incomplete"]
@@ -62,13 +63,18 @@ def incomplete_output(exc: BaseException) -> str | None:
     return getattr(exc, _MARK, None)
 
 
-def exit_code(exc: BaseException) -> int:
-    """The exit code of a command that raised ``exc`` (the table above): 1 for a run that
-    had started its output or that was done in part, 2 for an input or command line that
-    could not be used (``ValueError``, ``OSError``, ``MemoryError``: refused before any
-    output), 1 for a full disk or an I/O error and for anything else (a failure of ours;
-    ``ADFUSION_DEBUG=1`` shows where)."""
-    if incomplete_output(exc) is not None or isinstance(exc, PartlyDone):
+def exit_code(exc: BaseException, written: Sequence[str] = ()) -> int:
+    """The exit code of a command that raised ``exc`` (the table above), having completed
+    the outputs ``written`` before (:func:`adfusion.outfiles.written_outputs`): 1 for a
+    run that had started or written an output or that was done in part, 2 for an input or
+    command line that could not be used (``ValueError``, ``OSError``, ``MemoryError``:
+    refused before any output), 1 for a full disk or an I/O error and for anything else (a
+    failure of ours; ``ADFUSION_DEBUG=1`` shows where).
+
+    >>> exit_code(ValueError("--csv out: is a folder"), written=["run.aem"])
+    1
+    """
+    if incomplete_output(exc) is not None or isinstance(exc, PartlyDone) or written:
         return 1
     if isinstance(exc, OSError) and exc.errno in _MACHINE:  # the machine failed, not the
         return 1  # input: the same command may work on another disk

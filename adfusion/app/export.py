@@ -33,7 +33,7 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -49,7 +49,9 @@ __all__ = ["AttitudeHistory", "read_attitude_history", "write_aem", "write_csv"]
 class AttitudeHistory:
     """The estimates of a log: run times ``t`` (s), ``q_body_icrs`` (N, 4), 1σ ``sigma_rad``
     (N, 3) about body x, y, z, star-ID ``mode`` and stars matched per estimate, and the UTC
-    of run time 0 (``start_utc_ns``, nanoseconds since 1970)."""
+    of run time 0 (``start_utc_ns``, nanoseconds since 1970); ``problems``: what the log
+    says went wrong (:func:`adfusion.app.report.log_problems`: damage, an incomplete run,
+    input problems)."""
 
     t: np.ndarray
     q_body_icrs: np.ndarray
@@ -58,6 +60,7 @@ class AttitudeHistory:
     n_stars: list[int]
     start_utc_ns: int
     object_name: str = "UNKNOWN"
+    problems: list[str] = field(default_factory=list)
 
     def utc(self, k: int) -> str:
         """ISO 8601 UTC epoch of estimate ``k`` (microseconds)."""
@@ -72,6 +75,8 @@ def read_attitude_history(path: str | os.PathLike[str], *, smoothed: bool = Fals
     ``start_utc`` (ISO 8601 UTC) is the UTC of the log's t = 0, for a log that does not
     know it (an ``adfusion acs`` run, a replay without ``--start-utc``); a log that does
     keeps its own, and a different one is an error."""
+    from adfusion.app.report import log_problems
+
     reader = McapLogReader(path)
     state = topics.SMOOTHED_STATE if smoothed else topics.ESTIMATE_STATE
     start = reader.start_utc or reader.metadata.get("config", {}).get("start_utc")
@@ -106,7 +111,7 @@ def read_attitude_history(path: str | os.PathLike[str], *, smoothed: bool = Fals
         t_a, np.asarray(q, dtype=float)[order],
         np.sqrt(np.asarray(var, dtype=float)[order]),
         [modes.get(x, "") for x in t_a.tolist()], [stars.get(x, 0) for x in t_a.tolist()],
-        utc_ns(start), name)
+        utc_ns(start), name, log_problems(reader))
 
 
 def write_aem(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:

@@ -42,7 +42,7 @@ from adfusion.logs import McapLogReader, topics
 from adfusion.maths import rotations as rot
 from adfusion.outfiles import refuse_overwrite
 
-__all__ = ["log_problems", "log_streams", "report"]
+__all__ = ["log_assumed", "log_problems", "log_streams", "report"]
 
 _CHI2_3 = (0.2157952826, 9.3484036045)  # χ²(3) 2.5 % and 97.5 % points
 _WINDOW = 20  # frames in the NIS running mean
@@ -123,8 +123,8 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
     matplotlib.use("Agg")
     out = Path(out_dir)
     refuse_overwrite([("-o", out / f) for f in REPORT_FILES], [log_path])  # before any work
+    log = _Log(log_path, progress)  # a log that cannot be reported leaves no folder behind
     out.mkdir(parents=True, exist_ok=True)
-    log = _Log(log_path, progress)
     lines: list[str] = []
     files = [
         _attitude_error(log, out, lines), _nis(log, out, lines), _stars(log, out, lines),
@@ -135,6 +135,7 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
     # incomplete run, the defaults it assumed
     lines += log_streams(log.reader)
     lines += [f"problem: {p}" for p in log_problems(log.reader)]
+    lines += [f"note: {n}" for n in log_assumed(log.reader)]
     name = Path(log_path).name
     md = out / "summary.md"
     md.write_text("\n".join([f"# Replay report: {name}", ""] + [f"- {x}" for x in lines]
@@ -174,8 +175,8 @@ def log_streams(reader: McapLogReader) -> list[str]:
 
 def log_problems(reader: McapLogReader) -> list[str]:
     """What a replayed log says went wrong: damage found reading it, the run's input
-    problems and dropped counts (``problems`` metadata), an ``incomplete`` run, and the
-    defaults it assumed (``assumptions``)."""
+    problems and dropped counts (``problems`` metadata), an ``incomplete`` run. (The
+    defaults a run was told to assume are no problem: :func:`log_assumed`.)"""
     out = [f"reading this log: {p}" for p in reader.problems]
     inc = reader.metadata.get("incomplete")
     if isinstance(inc, dict):
@@ -184,11 +185,17 @@ def log_problems(reader: McapLogReader) -> list[str]:
     probs = reader.metadata.get("problems")
     if isinstance(probs, dict):
         out += [f"input: {p}" for p in probs.get("input", []) if isinstance(p, str)]
-    assumed = reader.metadata.get("assumptions")
-    if isinstance(assumed, dict) and assumed:
-        out.append("assumed (the input had no configuration): " + ", ".join(
-            f"{k} = {v}" for k, v in assumed.items()))
     return out
+
+
+def log_assumed(reader: McapLogReader) -> list[str]:
+    """The defaults a replay assumed for an input without configuration
+    (``--assume-defaults``, the ``assumptions`` metadata): said, but no problem."""
+    assumed = reader.metadata.get("assumptions")
+    if not (isinstance(assumed, dict) and assumed):
+        return []
+    return ["assumed (the input had no configuration): " + ", ".join(
+        f"{k} = {v}" for k, v in assumed.items())]
 
 
 def _save(fig, path: Path) -> Path:

@@ -66,7 +66,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     try:
         res = calibrate_frames(dets, camera, deep, id_catalog=ident, terms=terms, **fov_kw)
     except NoFrameIdentified as e:  # read, but not identified: exit 1, as solve's
-        raise PartlyDone(str(e)) from None
+        raise PartlyDone("no frame could be identified: " + "; ".join(
+            f"{paths[k].name}: {why}" for k, why in e.failed.items())) from None
     cam = res.camera
     with atomic_output(args.output) as tmp:
         write_camera_yaml(cam, tmp,

@@ -10,7 +10,7 @@ from adfusion.app.commands.args import _input_file, _output_folder
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from adfusion.app.report import log_problems, report
+    from adfusion.app.report import log_assumed, log_problems, report
 
     _input_file(args.log, "MCAP")
     _output_folder(args.output)
@@ -18,7 +18,10 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     files = report(args.log, args.output, progress=sys.stderr.isatty())
     print("\n".join(str(f) for f in files))
-    problems = log_problems(McapLogReader(args.log, warn=False))
+    reader = McapLogReader(args.log, warn=False)
+    problems = log_problems(reader)
     for p in problems:
         print(f"problem: {p}")
+    for n in log_assumed(reader):
+        print(f"note: {n}")
     return 1 if problems else 0

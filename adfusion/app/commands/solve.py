@@ -124,6 +124,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
         frames = [(p.name, lambda p=p: read_image(p)) for p in paths]
     solvers = _Solvers(args)
     records = []
+    unread: list[str] = []  # why each image that could not be read was not
     bar = None
     if len(frames) > 1:
         from tqdm import tqdm
@@ -138,6 +139,7 @@ def cmd_solve(args: argparse.Namespace) -> int:
             if len(frames) == 1:
                 raise
             rec = {"image": name, "ok": False, "reason": str(e)}
+            unread.append(str(e))
         else:
             solver = solvers.solver_for(camera)
             t0 = time.perf_counter()
@@ -181,6 +183,10 @@ def cmd_solve(args: argparse.Namespace) -> int:
             if lost:
                 print(f"{lost} of {len(records)} frames had nothing near an identification")
                 print(_FOV_HINT)
+        if len(unread) == len(records):  # nothing done: no image to solve (exit 2)
+            print(f"adfusion solve: error: none of the {len(records)} images could be read "
+                  f"(first: {unread[0]})", file=sys.stderr)
+            return 2
         return 0 if all_ok else 1
     out = records[0]
     if args.json:

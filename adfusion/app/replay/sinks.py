@@ -271,7 +271,8 @@ def end_sinks(opened: list[Any], failure: BaseException | None) -> None:
     ended = failure if failure is not None else raised
     if ended is not None:  # the output, if it could be finished, holds the run so far
         for sink in opened:
-            if isinstance(sink, LogSink) and sink.log is not None and sink.log.written:
+            if (isinstance(sink, LogSink) and sink.aborted and sink.log is not None
+                    and sink.log.written):  # closed marked incomplete, not complete
                 mark_incomplete(ended, sink.path)
     if raised is not None:
         raise raised
@@ -296,6 +297,7 @@ class LogSink:
         self.mounts: list[tuple] = []
         self.run: Run | None = None
         self.streams = StreamCounter()  # recorded as the output's `streams` metadata
+        self.aborted = False  # ended by abort: the output is marked incomplete
 
     def open(self, run: Run) -> None:
         self.q_body_cam = run.q_body_cam
@@ -375,6 +377,7 @@ class LogSink:
     def abort(self, reason: str) -> None:
         """The run failed: the output is closed marked ``incomplete`` (reason) — or, when
         even that fails, removed; never left as a temporary file and a lock."""
+        self.aborted = True
         if self.log is not None:
             try:
                 self._problems()

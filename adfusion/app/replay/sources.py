@@ -369,13 +369,15 @@ class FolderInput(_FramesInput):
 def _first_frame_size(folder: Path, names: list[str]) -> tuple[int, int]:
     """``(width, height)`` of the first of ``names`` whose header reads; the first file's
     error, with how many others failed, when none does."""
-    first: ImageFileError | None = None
+    first: Exception | None = None
     for name in names:
         try:
             return frame_size(folder / name)
-        except ImageFileError as exc:
+        except (ImageFileError, OSError) as exc:  # not an image, cut, a dangling link
             first = first or exc
     others = f" (nor any of the other {len(names) - 1} file(s))" if len(names) > 1 else ""
+    if isinstance(first, OSError) and not isinstance(first, ImageFileError):
+        first = ImageFileError(f"{folder / names[0]}: {first.strerror or first}")
     raise ImageFileError(f"{first}{others}") from None
 
 
@@ -388,6 +390,10 @@ class VideoInput(_FramesInput):
         self.name = str(path)
         if fps is not None and not fps > 0:
             raise UsageError(f"--fps {fps}: a frame rate must be positive")
+        if Path(path).suffix.lower() in IMAGE_SUFFIXES:
+            # one frame file, read by OpenCV's video reader: its header first, so a file
+            # that is no image is said as such (OpenCV opens it with a size of 0)
+            frame_size(path)
         try:
             self._source = VideoSource(path, fps=fps)
         except ValueError as e:
@@ -401,6 +407,10 @@ class VideoInput(_FramesInput):
         self._size = (int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)),
                       int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT)))
         cap.release()
+        if min(self._size) <= 0:
+            raise ValueError(f"{path}: OpenCV opens it but finds no frame size: not a video "
+                             "it can read (a folder of frames, an MCAP log or a ROS 2 bag "
+                             "are the other inputs)")
 
 
 
