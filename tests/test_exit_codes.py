@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 from adfusion.logs import McapLogReader
 from adfusion.sensors.scenarios import oedipus
+from raising_input import raising_after
 
 from adfusion.app.cli import main
 from adfusion.app.errors import PartlyDone, UsageError, exit_code, mark_incomplete
 from adfusion.app.replay import simulate
-from adfusion.app.replay import sources as replay_sources
 
 
 @pytest.fixture(scope="module")
@@ -89,23 +89,7 @@ def test_a_replay_that_fails_after_its_output_started_is_exit_1_naming_it(
         tmp_path, capsys, monkeypatch):
     sim = tmp_path / "sim.mcap"
     simulate(oedipus(duration_s=1.0, render=False, seed=1), sim)
-    opened = replay_sources.open_input
-
-    class Raising:
-        def __init__(self, source):
-            self._source = source
-
-        def __getattr__(self, name):
-            return getattr(self._source, name)
-
-        def __iter__(self):
-            for k, msg in enumerate(self._source):
-                if k == 200:
-                    raise ValueError("the disk went away")
-                yield msg
-
-    monkeypatch.setattr(replay_sources, "open_input",
-                        lambda path, **kw: Raising(opened(path, **kw)))
+    raising_after(200, ValueError("the disk went away"), monkeypatch)
     out = tmp_path / "o.mcap"
     code, err = _run(["replay", sim, "-o", out], capsys)
     assert code == 1 and len(err) == 1, err

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from adfusion.logs import McapLogReader
 from adfusion.sensors.scenarios import oedipus
+from raising_input import raising_after
 
 from adfusion.app.replay import ReplayOptions, replay, simulate
-from adfusion.app.replay import sources as replay_sources
 from adfusion.app.replay.sinks import ReplaySummary, SummarySink
 from adfusion.plain import listed, printable
 
@@ -46,27 +46,6 @@ class Boom(RuntimeError):
     pass
 
 
-def _raising_after(n: int, exc: BaseException, monkeypatch) -> None:
-    """Every input that :func:`replay` opens raises ``exc`` after its ``n``-th message."""
-    opened = replay_sources.open_input
-
-    class Raising:
-        def __init__(self, source):
-            self._source = source
-
-        def __getattr__(self, name):
-            return getattr(self._source, name)
-
-        def __iter__(self):
-            for k, msg in enumerate(self._source):
-                if k == n:
-                    raise exc
-                yield msg
-
-    monkeypatch.setattr(replay_sources, "open_input",
-                        lambda path, **kw: Raising(opened(path, **kw)))
-
-
 # --------------------------------------------------------------- a failed run leaves
 @pytest.mark.parametrize("exc, reason", [
     (Boom("the disk went away"), "Boom: the disk went away"),
@@ -77,7 +56,7 @@ def _raising_after(n: int, exc: BaseException, monkeypatch) -> None:
 ])
 def test_a_replay_whose_source_raises_leaves_only_its_output_marked_incomplete(
         sim, tmp_path, monkeypatch, exc, reason):
-    _raising_after(200, exc, monkeypatch)
+    raising_after(200, exc, monkeypatch)
     out = tmp_path / "out"
     out.mkdir()
     with pytest.raises(type(exc)) as raised:

@@ -49,8 +49,6 @@ from adfusion.starid.identify.solution import Candidate, Solution, accepted_solu
 from adfusion.starid.identify.verify import distinct_candidates, quick_tuples
 from numpy.typing import NDArray
 
-from adfusion.plain import listed
-
 if TYPE_CHECKING:
     from adfusion.starid.identify.catalog_view import CatalogView
     from adfusion.starid.identify.refine import Refiner
@@ -200,7 +198,7 @@ class PatternSearch:
         self.n_bands = int(settings.pop("n_bands"))
         self.dec_check = settings.pop("dec_check")
         if settings:
-            raise TypeError(f"PatternSearch: unknown settings {listed(sorted(settings), None)}")
+            raise TypeError(f"PatternSearch: unknown settings {', '.join(sorted(settings))}")
         # the search runs compiled, except with the matchers kept in numpy
         self._compiled = not (self.faithful or self.n_bands > 1)
 
