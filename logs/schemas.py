@@ -103,6 +103,10 @@ FILTER_STATE = _object(
                          "video-only, or a gyro outage)"),
         "cov_diag": _vec(None, "covariance diagonal: attitude error (rad^2, body axes), then "
                                "bias or rate ((rad/s)^2)"),
+        "cov": _vec(36, "full error covariance, 6×6 row-major: attitude error (rad^2, body "
+                        "axes), then bias or rate ((rad/s)^2), cross terms rad^2/s; its "
+                        "diagonal is cov_diag (filter only: /smoothed/state has cov_diag "
+                        "alone; optional, absent in older logs)"),
         "nis": {**_NUM, "description": "normalised innovation squared of this frame's star "
                                        "fix (3 dof; null: no fix was tested)"},
         "rejected": _REJECTED,

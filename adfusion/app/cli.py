@@ -227,10 +227,14 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                    help="with --smooth: Levenberg–Marquardt batch (default) or iSAM2")
     rp.set_defaults(func=cmd_replay)
 
-    ex = sub.add_parser("export", help="flight-dynamics products of a replayed log (AEM, CSV)")
+    ex = sub.add_parser("export", help="flight-dynamics products of a replayed log (AEM, ACM, "
+                        "CSV)")
     ex.add_argument("log", help="a replayed .mcap")
     ex.add_argument("--aem", metavar="FILE", help="CCSDS Attitude Ephemeris Message (KVN); "
-                    "default: none (give --aem, --csv or both)")
+                    "default: none (give at least one of --aem, --acm, --csv)")
+    ex.add_argument("--acm", metavar="FILE", help="CCSDS Attitude Comprehensive Message 2.0 "
+                    "(XML): quaternion, gyro bias or rate, covariance; needs ccsds-ndm; "
+                    "default: none")
     ex.add_argument("--csv", metavar="FILE", help="CSV: UTC, quaternion, RA/Dec/roll, 1σ, "
                     "mode, stars; default: none")
     ex.add_argument("--smoothed", action="store_true", help="export /smoothed/state instead "

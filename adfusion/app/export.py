@@ -8,6 +8,9 @@
   convention, written with ``repr`` (17 significant digits) so that a reader gets the log's
   numbers back exactly. Version 1.0 because it names the direction and the scalar's place
   explicitly (and the independent reader ``ccsds-ndm`` reads it).
+* :func:`write_acm` — CCSDS ACM 2.0 (CCSDS 504.0-B-2), an Attitude Comprehensive Message, in
+  XML, written with the ``ccsds-ndm`` package (its ACM KVN writer and reader do not work in
+  3.1: no block delimiters); see :func:`write_acm` for the content.
 * :func:`write_csv` — one row per estimate: UTC, run seconds, the quaternion (scalar first),
   RA/Dec/roll of body +z (deg), 1σ about body x, y, z (deg), star-ID mode, stars matched.
 
@@ -32,6 +35,7 @@ from __future__ import annotations
 
 import csv
 import datetime as dt
+import math
 import os
 from dataclasses import dataclass, field
 
@@ -42,7 +46,7 @@ from adfusion.logs import McapLogReader, topics
 from adfusion.logs.writer import utc_ns
 from adfusion.maths import rotations as rot
 
-__all__ = ["AttitudeHistory", "read_attitude_history", "write_aem", "write_csv"]
+__all__ = ["AttitudeHistory", "read_attitude_history", "write_acm", "write_aem", "write_csv"]
 
 
 @dataclass
@@ -51,7 +55,9 @@ class AttitudeHistory:
     (N, 3) about body x, y, z, star-ID ``mode`` and stars matched per estimate, and the UTC
     of run time 0 (``start_utc_ns``, nanoseconds since 1970); ``problems``: what the log
     says went wrong (:func:`adfusion.app.report.log_problems`: damage, an incomplete run,
-    input problems)."""
+    input problems). ``var`` (N, 6): the log's ``cov_diag``; ``cov`` (N, 6, 6): its full
+    ``cov`` (NaN where the log has none: the smoother, an older log); ``bias`` and ``omega``
+    (N, 3, rad/s, NaN where the log has none); ``smoothed``: the smoother's history."""
 
     t: np.ndarray
     q_body_icrs: np.ndarray
@@ -61,6 +67,11 @@ class AttitudeHistory:
     start_utc_ns: int
     object_name: str = "UNKNOWN"
     problems: list[str] = field(default_factory=list)
+    var: np.ndarray | None = None
+    cov: np.ndarray | None = None
+    bias: np.ndarray | None = None
+    omega: np.ndarray | None = None
+    smoothed: bool = False
 
     def utc(self, k: int) -> str:
         """ISO 8601 UTC epoch of estimate ``k`` (microseconds)."""
@@ -93,11 +104,18 @@ def read_attitude_history(path: str | os.PathLike[str], *, smoothed: bool = Fals
         raise ValueError(f"{path}: the log does not know its UTC start time: give it with "
                          "--start-utc TIME (the UTC of the log's t = 0)")
     t, q, var, modes, stars = [], [], [], {}, {}
+    cov, bias, omega = [], [], []
+    nan3, nan36 = [math.nan] * 3, [math.nan] * 36
     for m in reader:
         if m.topic == state:
             t.append(m.payload["t"])
             q.append(m.payload["q_body_icrs"])
-            var.append(m.payload["cov_diag"][:3])
+            d = list(m.payload["cov_diag"])
+            var.append((d + [math.nan] * 6)[:6])
+            c = m.payload.get("cov")
+            cov.append(c if isinstance(c, list) and len(c) == 36 else nan36)
+            bias.append(m.payload.get("bias") or nan3)
+            omega.append(m.payload.get("omega") or nan3)
         elif m.topic == topics.ESTIMATE_ATTITUDE:
             modes[m.payload["t"]] = m.payload.get("mode") or ""
             stars[m.payload["t"]] = int(m.payload.get("n_stars", 0))
@@ -107,11 +125,14 @@ def read_attitude_history(path: str | os.PathLike[str], *, smoothed: bool = Fals
     order = np.argsort(t, kind="stable")
     t_a = np.asarray(t, dtype=float)[order]
     name = str(reader.metadata.get("config", {}).get("scenario", "UNKNOWN")).upper()
+    var_a = np.asarray(var, dtype=float)[order]
     return AttitudeHistory(
-        t_a, np.asarray(q, dtype=float)[order],
-        np.sqrt(np.asarray(var, dtype=float)[order]),
+        t_a, np.asarray(q, dtype=float)[order], np.sqrt(var_a[:, :3]),
         [modes.get(x, "") for x in t_a.tolist()], [stars.get(x, 0) for x in t_a.tolist()],
-        utc_ns(start), name, log_problems(reader))
+        utc_ns(start), name, log_problems(reader), var=var_a,
+        cov=np.asarray(cov, dtype=float)[order].reshape(-1, 6, 6),
+        bias=np.asarray(bias, dtype=float)[order], omega=np.asarray(omega, dtype=float)[order],
+        smoothed=smoothed)
 
 
 def write_aem(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:
@@ -129,6 +150,154 @@ def write_aem(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:
     lines += ["DATA_STOP", ""]
     with open(path, "w", encoding="ascii") as f:
         f.write("\n".join(lines))
+
+
+def _utc_ns_iso(ns: int) -> str:
+    """ISO 8601 UTC of ``ns`` nanoseconds since 1970, to the nanosecond."""
+    t = dt.datetime(1970, 1, 1) + dt.timedelta(seconds=ns // 1_000_000_000)
+    return t.strftime("%Y-%m-%dT%H:%M:%S") + f".{ns % 1_000_000_000:09d}"
+
+
+def _num(v: float) -> str:
+    return repr(float(v))
+
+
+def write_acm(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:
+    """The history as a CCSDS ACM 2.0 (XML), written with ``ccsds-ndm``.
+
+    * ``EPOCH_TZERO`` is the UTC of the log's t = 0; every data line's time tag is the
+      estimate's run time ``t`` (s) relative to it (the ACM's convention), so a line's UTC is
+      ``EPOCH_TZERO + t`` — the epoch the AEM export writes, to the nanosecond.
+    * ``ATT_1``: every estimate, ``REF_FRAME_A = ICRF``, ``REF_FRAME_B = SC_BODY_1``,
+      ``ATT_TYPE = QUATERNION``. The ACM's quaternion is the coordinate transformation from
+      frame A to frame B, written ``Q1 Q2 Q3 QC`` (scalar last): that is the log's
+      ``q_body_icrs = [w, x, y, z]`` (Hamilton, rotates ICRS vector coordinates into the
+      body frame) written ``x y z w``. ``RATE_TYPE = GYRO_BIAS`` (the filter's gyro bias)
+      when every estimate has one; ``ANGVEL`` (the estimated body rate ``omega``, of the body
+      relative to ICRF in body axes) when none has a bias but every one a rate (no gyro).
+      Rates are deg/s, as the ACM wants.
+    * ``ATT_2`` (when ``ATT_1`` carries the bias and some estimates have a rate: a gyro
+      outage, a smoother with rates): ``QUATERNION`` + ``ANGVEL`` for those estimates.
+    * ``COV_1`` (``COV_2`` when the last three states change between bias and rate): the
+      covariance diagonal, ``COV_TYPE = ANGLE_GYROBIAS`` (or ``ANGLE_ANGVEL``),
+      ``COV_REF_FRAME = SC_BODY_1`` (attitude error δθ in the body frame), deg² and
+      (deg/s)². The ACM's covariance lines hold the diagonal only.
+    * ``USER``: the full 6×6 covariance (the log's ``cov``) of every estimate that has one,
+      ``USER_DEFINED`` parameter ``COV_k`` (k: the estimate's index), value: the time tag and
+      the 21 elements of the lower triangle row by row, deg², deg²/s, (deg/s)². A log without
+      ``cov`` (older, or the smoother's) gets the diagonal alone, and a ``COMMENT`` says so.
+    * ``AD``: the method (``EKF``, or ``FILTER_SMOOTHER`` for ``--smoothed``).
+
+    Numbers are ``repr`` (17 significant digits). Non-finite values are left out with their
+    line. ``ccsds-ndm`` is needed (``pip install ccsds-ndm``: a ``test`` extra)."""
+    try:
+        from ccsds_ndm.mapping import NDMFileFormats
+        from ccsds_ndm.models.ndmxml4 import ndmxml_4_0_0_acm_2_0 as am
+        from ccsds_ndm.models.ndmxml4 import ndmxml_4_0_0_common_4_0 as cm
+        from ccsds_ndm.models.ndmxml4.ndmxml_4_0_0_master_4_0 import Acm
+        from ccsds_ndm.ndm_io import NdmIo
+    except ImportError:
+        raise UsageError("--acm needs the ccsds-ndm package: pip install ccsds-ndm") from None
+    n = len(h.t)
+    nan = np.full((n, 3), np.nan)
+    bias = h.bias if h.bias is not None else nan
+    omega = h.omega if h.omega is not None else nan
+    var = h.var if h.var is not None else np.concatenate([h.sigma_rad**2, nan], axis=1)
+    cov = h.cov if h.cov is not None else np.full((n, 6, 6), np.nan)
+    has_bias = np.all(np.isfinite(bias), axis=1)
+    has_omega = np.all(np.isfinite(omega), axis=1)
+    deg = math.degrees(1.0)
+    basis = cm.AttBasisType.DETERMINED_GND
+    frames = {"ref_frame_a": "ICRF", "ref_frame_b": "SC_BODY_1"}
+
+    def quat(k: int) -> str:
+        w, x, y, z = h.q_body_icrs[k]
+        return " ".join(_num(v) for v in (h.t[k], x, y, z, w))
+
+    def rates(v: np.ndarray, k: int) -> str:
+        return " ".join(_num(deg * float(x)) for x in v[k])
+
+    att = []
+    if has_bias.all():
+        rate, lines = cm.AttRateType.GYRO_BIAS, [f"{quat(k)} {rates(bias, k)}" for k in range(n)]
+    elif has_omega.all():
+        rate, lines = cm.AttRateType.ANGVEL, [f"{quat(k)} {rates(omega, k)}" for k in range(n)]
+    else:
+        rate, lines = None, [quat(k) for k in range(n)]
+    att.append(am.AcmAttitudeStateType(
+        comment=["every estimate; quaternion ICRF -> SC_BODY_1 (A to B), Q1 Q2 Q3 QC"
+                 + ("; gyro bias, deg/s, body axes" if rate is cm.AttRateType.GYRO_BIAS else
+                    "; body rate relative to ICRF, deg/s, body axes" if rate else "")],
+        att_id="ATT_1", att_basis=basis, **frames, number_states=4 if rate is None else 7,
+        att_type=cm.AcmAttitudeType.QUATERNION, rate_type=rate, att_line=lines))
+    if rate is not cm.AttRateType.ANGVEL and has_omega.any():
+        att.append(am.AcmAttitudeStateType(
+            comment=["the estimates with a body rate (no gyro): relative to ICRF, deg/s, "
+                     "body axes"], att_id="ATT_2", att_prev_id="ATT_1", att_basis=basis,
+            **frames, number_states=7, att_type=cm.AcmAttitudeType.QUATERNION,
+            rate_type=cm.AttRateType.ANGVEL,
+            att_line=[f"{quat(k)} {rates(omega, k)}" for k in np.flatnonzero(has_omega)]))
+
+    full = np.all(np.isfinite(cov.reshape(n, -1)), axis=1)
+    scale = np.array([deg] * 6)
+    covs: list[tuple[bool, list[str]]] = []  # (rate states, lines), in time order
+    for k in range(n):
+        v = var[k] if not full[k] else np.diag(cov[k])
+        if not np.all(np.isfinite(v)):
+            continue
+        line = " ".join(_num(x) for x in (h.t[k], *(v * scale * scale)))
+        if covs and covs[-1][0] == (not has_bias[k]):
+            covs[-1][1].append(line)
+        else:
+            covs.append((not has_bias[k], [line]))
+    note = [] if full.all() else [
+        "diagonal only for the estimates without a full covariance in the log (the smoother, "
+        "or a log older than /estimate/state cov): from cov_diag"]
+    cov_blocks = [am.AcmCovarianceMatrixType(
+        comment=["covariance diagonal: attitude error about body x, y, z (deg**2), then "
+                 + ("body rate" if by_rate else "gyro bias") + " ((deg/s)**2)", *note],
+        cov_id=f"COV_{i + 1}", cov_prev_id=f"COV_{i}" if i else None, cov_basis=basis,
+        cov_ref_frame="SC_BODY_1",
+        cov_type=(cm.AcmCovarianceLineType.ANGLE_ANGVEL if by_rate
+                  else cm.AcmCovarianceLineType.ANGLE_GYROBIAS), cov_line=lines)
+        for i, (by_rate, lines) in enumerate(covs)]
+    user = None
+    if full.any():
+        low = np.tril_indices(6)
+        user = cm.UserDefinedType(
+            comment=["COV_k: the full 6x6 error covariance of estimate k (the ACM's COV lines "
+                     "hold the diagonal only): time tag (s from EPOCH_TZERO), then the lower "
+                     "triangle row by row (21 values): attitude error about body x, y, z "
+                     "(deg**2), gyro bias or body rate ((deg/s)**2), cross terms (deg**2/s)"],
+            user_defined=[cm.UserDefinedParameterType(
+                parameter=f"COV_{k}", value=" ".join(_num(x) for x in (
+                    h.t[k], *(cov[k] * np.outer(scale, scale))[low])))
+                for k in np.flatnonzero(full)])
+    rate_states = (cm.AttRateType.ANGVEL if covs and covs[0][0] else cm.AttRateType.GYRO_BIAS)
+    ad = am.AcmAdParametersType(
+        comment=["adfusion: star-camera fixes in a multiplicative EKF, with the gyro when "
+                 "there is one" + ("; then smoothed (GTSAM)" if h.smoothed else "")],
+        ad_method=cm.AdMethodType.FILTER_SMOOTHER if h.smoothed else cm.AdMethodType.EKF,
+        attitude_source="star camera" + (", gyro" if has_bias.any() else ""), number_states=7,
+        attitude_states=cm.AcmAttitudeType.QUATERNION,
+        cov_type=(cm.AcmCovarianceLineType.ANGLE_ANGVEL if rate_states is cm.AttRateType.ANGVEL
+                  else cm.AcmCovarianceLineType.ANGLE_GYROBIAS), **frames,
+        rate_states=rate_states)
+    elements = ["ATT"] * len(att) + ["COV"] * len(cov_blocks) + ["AD"] + (["USER"] if user
+                                                                           else [])
+    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%S")
+    msg = Acm(
+        header=cm.AdmHeader(comment=[f"adfusion export of {h.object_name}"],
+                            creation_date=now, originator="ADFUSION"),
+        body=am.AcmBody(segment=am.AcmSegment(
+            metadata=am.AcmMetadata(
+                object_name=h.object_name, time_system="UTC",
+                epoch_tzero=_utc_ns_iso(h.start_utc_ns), acm_data_elements=", ".join(elements),
+                start_time=h.utc(0), stop_time=h.utc(n - 1)),
+            data=am.AcmData(att=att, cov=cov_blocks, ad=ad, user=user))))
+    text = NdmIo().to_string(msg, NDMFileFormats.XML)
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text)
 
 
 def write_csv(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:

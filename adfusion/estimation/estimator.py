@@ -76,6 +76,9 @@ class StepRecord:
     # how the frame's stars were found: "windows" (``detect_tracking`` around the stars
     # the prior predicts), "frame" (the whole frame), "given" (detections passed in), ""
     detection: str = ""
+    # the full error covariance P (6×6, a copy): attitude error δθ (body, rad), then gyro
+    # bias (rad/s) — or the rate without a gyro; ``sigma_rad`` is the root of its diagonal
+    cov: NDArray[np.float64] | None = None
 
 
 class Estimator:
@@ -723,8 +726,12 @@ class Estimator:
         if self.filter is not None:
             rec.q_body_icrs = np.array(self.filter.q_body_icrs)
             rec.bias_rad_s = np.array(self.filter.bias_rad_s)
-            rec.sigma_rad = np.sqrt(self.filter.P.diagonal())
+            rec.cov = np.array(self.filter.P, dtype=np.float64)  # a copy, whatever the filter
             if self._outage is not None:  # the bias (and its σ) kept for the gyro's return
                 rec.bias_rad_s = self._outage.bias_rad_s.copy()
-                rec.sigma_rad[3:] = np.sqrt(np.diag(self._outage.bias_cov))
+                # the held bias is uncorrelated with the attitude the rate filter carries
+                rec.cov[3:, :] = 0.0
+                rec.cov[:3, 3:] = 0.0
+                rec.cov[3:, 3:] = self._outage.bias_cov
+            rec.sigma_rad = np.sqrt(rec.cov.diagonal())
         return rec

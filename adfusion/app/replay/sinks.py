@@ -422,6 +422,8 @@ class LogSink:
             state = {"t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
                      "cov_diag": rec.sigma_rad**2, "nis": rec.nis.get("star fix"),
                      "rejected": [{"input": i, "reason": r} for i, r in rec.rejected]}
+            if rec.cov is not None:  # the full P, row-major (cov_diag is its diagonal)
+                state["cov"] = rec.cov.reshape(-1)
             if self.estimator.without_gyro:  # no gyro (now): the filter's rate as well
                 state["omega"] = np.asarray(self.estimator.filter.omega_rad_s)
             if self.estimator.video_only:  # no gyro, no bias
