@@ -228,15 +228,19 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
     rp.set_defaults(func=cmd_replay)
 
     ex = sub.add_parser("export", help="flight-dynamics products of a replayed log (AEM, ACM, "
-                        "CSV)")
+                        "CSV, ROS 2 bag)")
     ex.add_argument("log", help="a replayed .mcap")
     ex.add_argument("--aem", metavar="FILE", help="CCSDS Attitude Ephemeris Message (KVN); "
-                    "default: none (give at least one of --aem, --acm, --csv)")
+                    "default: none (give at least one of --aem, --acm, --csv, --ros2)")
     ex.add_argument("--acm", metavar="FILE", help="CCSDS Attitude Comprehensive Message 2.0 "
                     "(XML): quaternion, gyro bias or rate, covariance; needs ccsds-ndm; "
                     "default: none")
     ex.add_argument("--csv", metavar="FILE", help="CSV: UTC, quaternion, RA/Dec/roll, 1σ, "
                     "mode, stars; default: none")
+    ex.add_argument("--ros2", metavar="DIR", help="ROS 2 bag (a new folder, MCAP storage): "
+                    "per estimate sensor_msgs/Imu on /adfusion/imu and "
+                    "PoseWithCovarianceStamped on /adfusion/pose, orientation of body in "
+                    "icrs with its covariance; needs rosbags; default: none")
     ex.add_argument("--smoothed", action="store_true", help="export /smoothed/state instead "
                     "of the filter's /estimate/state")
     ex.add_argument("--start-utc", metavar="TIME", help="UTC of the log's t = 0 (ISO 8601), "
