@@ -190,3 +190,18 @@ def test_solve_with_every_hipparcos_star_fits_in_memory(capsys):
     assert main(["solve", "--example", "--mag-limit", "99", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["ok"] and res["error_vs_truth_arcsec"] < 10
+
+
+@pytest.mark.parametrize("text, want", [("inf", 2**63 - 1), ("Infinity", 2**63 - 1),
+                                        ("2", 2_000_000_000), ("nan", None), ("-1", None),
+                                        ("lots", None)])
+def test_a_size_limit_of_inf_is_no_limit_and_nan_an_error(monkeypatch, text, want):
+    """``ADFUSION_INDEX_MAX_GB=inf`` ended a solve in an ``OverflowError`` (issue 33)."""
+    from adfusion.starid.catalog.pair_index import max_index_bytes
+
+    monkeypatch.setenv("ADFUSION_INDEX_MAX_GB", text)
+    if want is None:
+        with pytest.raises(ValueError, match="ADFUSION_INDEX_MAX_GB"):
+            max_index_bytes()
+    else:
+        assert max_index_bytes() == want

@@ -257,7 +257,8 @@ def env_size_bytes(name: str, default: float, unit: str, scale: float,
                    allow_zero: bool) -> int:
     """A size limit from the environment variable ``name`` in ``unit`` (``scale`` bytes
     each; ``default`` when unset), as bytes — one reader for the cache cap and the index's
-    memory bound, with the error naming the variable.
+    memory bound, with the error naming the variable. ``inf`` is no limit (the largest
+    size a file system can hold, 2⁶³ − 1 bytes); ``nan`` and negative values are errors.
 
     >>> env_size_bytes("ADFUSION_NO_SUCH_LIMIT", 1.5, "gigabytes", 1e9, False)
     1500000000
@@ -269,7 +270,7 @@ def env_size_bytes(name: str, default: float, unit: str, scale: float,
         raise ValueError(f"{name} must be a number of {unit}, got {env!r}") from None
     if not (value >= 0 if allow_zero else value > 0):
         raise ValueError(f"{name} must be {'≥ 0' if allow_zero else 'positive'}, got {env!r}")
-    return int(value * scale)
+    return min(int(min(value * scale, 2.0**63)), 2**63 - 1)  # inf: no limit
 
 
 def cache_limit_bytes() -> int:
