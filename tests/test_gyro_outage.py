@@ -189,8 +189,9 @@ def test_a_truncated_ulog_is_said_and_one_with_no_gyro_left_is_refused(tmp_path)
         read_ulog(stub, [])
     junk = tmp_path / "junk.ulg"
     junk.write_bytes(b"not a ulog at all" * 10)
-    with pytest.raises(ValueError, match=r"junk\.ulg: not a readable PX4 ULog"):
+    with pytest.raises(ValueError, match=r"junk\.ulg: not a readable PX4 ULog") as e:
         read_ulog(junk, [])
+    assert "Exception" not in str(e.value) and "\n" not in str(e.value)  # no library names
 
 
 def test_a_replay_with_a_truncated_ulog_reports_it(tmp_path, capsys):

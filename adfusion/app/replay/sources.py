@@ -150,8 +150,9 @@ def read_ulog(path: str | os.PathLike[str], problems: list[str] | None = None,
             ulog = ULog(os.fspath(path), ["sensor_combined", "vehicle_magnetometer",
                                           "sensor_mag"])
     except Exception as exc:  # pyulog's ULogException, struct.error, …: not a ULog
-        raise ValueError(f"--imu {path}: not a readable PX4 ULog "
-                         f"({type(exc).__name__}: {exc})") from None
+        raise ValueError(f"--imu {path}: not a readable PX4 ULog: its header or message "
+                         f"definitions are damaged or missing (pyulog stopped at: "
+                         f"{' '.join(str(exc).split()) or type(exc).__name__})") from None
     out = _ulog_messages(ulog)
     n_gyro = sum(m.topic == topics.GYRO for m in out)
     cut = ulog_truncated_at(path)
