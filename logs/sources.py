@@ -286,6 +286,11 @@ def _utc_minus(start_utc: str, seconds: float) -> str:
     return (t - dt.timedelta(seconds=seconds)).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
+def image_names(folder: str | os.PathLike[str]) -> list[str]:
+    """The names of the frame files in ``folder`` (by :data:`IMAGE_SUFFIXES`), sorted."""
+    return sorted(p.name for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+
+
 class ImageFolderSource:
     """Images of a folder in name order (in time order with a timestamps CSV), with a sensor
     CSV merged in by time.
@@ -313,8 +318,7 @@ class ImageFolderSource:
         self.folder = Path(folder)
         if not self.folder.is_dir():
             raise ValueError(f"{self.folder}: not a folder of images")
-        self.names = sorted(p.name for p in self.folder.iterdir()
-                            if p.suffix.lower() in IMAGE_SUFFIXES)
+        self.names = image_names(self.folder)
         #: the UTC of t = 0 when the file names give the frames' times (else None)
         self.start_utc: str | None = None
         named = times_from_names(self.names) if timestamps_csv is None and self.names else None

@@ -4,6 +4,7 @@ library's XML parser) to the log's numbers."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import math
 import xml.etree.ElementTree as ET
@@ -124,7 +125,7 @@ def test_acm_reads_back_to_the_logs_quaternions_bias_and_covariance(flight, tmp_
 def test_acm_of_a_log_without_cov_has_the_diagonal_and_says_so(flight, tmp_path):
     d, states = flight
     h = read_attitude_history(d / "out.mcap")
-    h.cov = None  # a log written before /estimate/state had cov
+    h = dataclasses.replace(h, cov=None)  # a log written before /estimate/state had cov
     write_acm(h, tmp_path / "old.acm")
     data = _acm(tmp_path / "old.acm").body.segment.data
     assert data.user is None

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 
 import numpy as np
@@ -154,7 +155,7 @@ def test_ros2_pose_holds_the_orientation_and_attitude_block(flight, tmp_path, ca
 def test_ros2_of_a_log_without_cov_rotates_the_diagonal(flight, tmp_path):
     d, (start, states) = flight
     h = read_attitude_history(d / "out.mcap")
-    h.cov = None  # a log written before /estimate/state had cov
+    h = dataclasses.replace(h, cov=None)  # a log written before /estimate/state had cov
     write_ros2_estimates(h, tmp_path / "old")
     msgs = _bag(tmp_path / "old")
     _check_common(msgs["/adfusion/pose"], start, states, "icrs")

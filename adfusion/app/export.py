@@ -46,6 +46,8 @@ from adfusion.logs import McapLogReader, topics
 from adfusion.logs.writer import utc_ns
 from adfusion.maths import rotations as rot
 
+ACM_MISSING = "--acm needs the ccsds-ndm package: pip install ccsds-ndm"
+
 __all__ = ["AttitudeHistory", "read_attitude_history", "write_acm", "write_aem", "write_csv"]
 
 
@@ -57,7 +59,8 @@ class AttitudeHistory:
     says went wrong (:func:`adfusion.app.report.log_problems`: damage, an incomplete run,
     input problems). ``var`` (N, 6): the log's ``cov_diag``; ``cov`` (N, 6, 6): its full
     ``cov`` (NaN where the log has none: the smoother, an older log); ``bias`` and ``omega``
-    (N, 3, rad/s, NaN where the log has none); ``smoothed``: the smoother's history."""
+    (N, 3, rad/s, NaN where the log has none); ``smoothed``: the smoother's history. Left
+    out, ``var`` is ``sigma_rad²`` then NaN, the others NaN: every writer reads them alike."""
 
     t: np.ndarray
     q_body_icrs: np.ndarray
@@ -72,6 +75,22 @@ class AttitudeHistory:
     bias: np.ndarray | None = None
     omega: np.ndarray | None = None
     smoothed: bool = False
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        if self.var is None:
+            self.var = np.concatenate([self.sigma_rad**2, np.full((n, 3), np.nan)], axis=1)
+        if self.cov is None:
+            self.cov = np.full((n, 6, 6), np.nan)
+        if self.bias is None:
+            self.bias = np.full((n, 3), np.nan)
+        if self.omega is None:
+            self.omega = np.full((n, 3), np.nan)
+
+    @property
+    def full_cov(self) -> np.ndarray:
+        """(N,) bool: the estimates whose full covariance (``cov``) the log holds."""
+        return np.all(np.isfinite(self.cov.reshape(len(self.t), -1)), axis=1)
 
     def utc(self, k: int) -> str:
         """ISO 8601 UTC epoch of estimate ``k`` (microseconds)."""
@@ -197,13 +216,9 @@ def write_acm(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:
         from ccsds_ndm.models.ndmxml4.ndmxml_4_0_0_master_4_0 import Acm
         from ccsds_ndm.ndm_io import NdmIo
     except ImportError:
-        raise UsageError("--acm needs the ccsds-ndm package: pip install ccsds-ndm") from None
+        raise UsageError(ACM_MISSING) from None
     n = len(h.t)
-    nan = np.full((n, 3), np.nan)
-    bias = h.bias if h.bias is not None else nan
-    omega = h.omega if h.omega is not None else nan
-    var = h.var if h.var is not None else np.concatenate([h.sigma_rad**2, nan], axis=1)
-    cov = h.cov if h.cov is not None else np.full((n, 6, 6), np.nan)
+    bias, omega, var, cov = h.bias, h.omega, h.var, h.cov
     has_bias = np.all(np.isfinite(bias), axis=1)
     has_omega = np.all(np.isfinite(omega), axis=1)
     deg = math.degrees(1.0)
@@ -238,7 +253,7 @@ def write_acm(h: AttitudeHistory, path: str | os.PathLike[str]) -> None:
             rate_type=cm.AttRateType.ANGVEL,
             att_line=[f"{quat(k)} {rates(omega, k)}" for k in np.flatnonzero(has_omega)]))
 
-    full = np.all(np.isfinite(cov.reshape(n, -1)), axis=1)
+    full = h.full_cov
     scale = np.array([deg] * 6)
     covs: list[tuple[bool, list[str]]] = []  # (rate states, lines), in time order
     for k in range(n):

@@ -82,11 +82,7 @@ def _blocks(h) -> tuple[np.ndarray, np.ndarray]:
     """Per estimate the body-axes 3×3 attitude block and the 3×3 block of the last three
     states: from the log's full ``cov``, else the diagonal of ``var`` (an older log, the
     smoother); NaN where neither is known."""
-    n = len(h.t)
-    cov = h.cov if h.cov is not None else np.full((n, 6, 6), np.nan)
-    var = h.var if h.var is not None else np.concatenate(
-        [h.sigma_rad**2, np.full((n, 3), np.nan)], axis=1)
-    full = np.all(np.isfinite(cov.reshape(n, -1)), axis=1)
+    cov, var, full = h.cov, h.var, h.full_cov
     att = np.where(full[:, None, None], cov[:, :3, :3],
                    np.eye(3) * var[:, None, :3])
     rest = np.where(full[:, None, None], cov[:, 3:, 3:],
@@ -159,8 +155,7 @@ def write_ros2_estimates(h, out_dir: str | os.PathLike[str]) -> dict[str, int]:
     known = np.all(np.isfinite(att_body.reshape(n, -1)), axis=1)
     att = attitude_cov_icrs(h.q_body_icrs, np.where(known[:, None, None], att_body, 0.0))
     att = 0.5 * (att + np.swapaxes(att, -1, -2))  # symmetric to the last bit
-    omega = h.omega if h.omega is not None else np.full((n, 3), np.nan)
-    bias = h.bias if h.bias is not None else np.full((n, 3), np.nan)
+    omega, bias = h.omega, h.bias
     has_omega = np.all(np.isfinite(omega), axis=1)
     rate_states = has_omega & ~np.all(np.isfinite(bias), axis=1)
     none9 = np.array([-1.0] + [0.0] * 8)

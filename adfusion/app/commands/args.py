@@ -104,6 +104,14 @@ def _outputs_apart(outputs: list[tuple[str, str]], inputs: list) -> None:
         raise UsageError(str(exc)) from None
 
 
+def _new_folder(path: str | None, flag: str) -> None:
+    """A folder the command will create (a ROS 2 bag): it must not exist yet — checked
+    before any work, not when the writer meets it."""
+    if path and os.path.lexists(path):
+        raise UsageError(f"{flag} {path} exists: a ROS 2 bag is written as a new folder; "
+                         "give a name that does not exist")
+
+
 def _output_folder(path: str, flag: str = "-o") -> None:
     """A folder the command will write into (created if missing): not an existing file."""
     if os.path.exists(path) and not os.path.isdir(path):

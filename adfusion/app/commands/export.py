@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 import argparse
-import os
 
-from adfusion.app.commands.args import _outputs_apart
+from adfusion.app.commands.args import _new_folder, _outputs_apart
 from adfusion.app.errors import UsageError
 from adfusion.outfiles import atomic_output
 
@@ -19,16 +18,16 @@ def cmd_export(args: argparse.Namespace) -> int:
     if not (args.aem or args.csv or acm or ros2):
         raise UsageError("nothing to export: give --aem FILE, --acm FILE, --csv FILE and/or "
                          "--ros2 DIR")
-    if ros2 and os.path.lexists(ros2):  # checked now, before reading the log
-        raise UsageError(f"--ros2 {ros2} exists: a ROS 2 bag is written as a new folder; "
-                         "give a name that does not exist")
+    _new_folder(ros2, "--ros2")  # checked now, before reading the log
     _outputs_apart([(flag, path) for flag, path in (("--aem", args.aem), ("--acm", acm),
                                                     ("--csv", args.csv), ("--ros2", ros2))
                     if path], [args.log])
     import importlib.util
 
     if acm and importlib.util.find_spec("ccsds_ndm") is None:
-        raise UsageError("--acm needs the ccsds-ndm package: pip install ccsds-ndm")
+        from adfusion.app.export import ACM_MISSING
+
+        raise UsageError(ACM_MISSING)
     if ros2 and importlib.util.find_spec("rosbags") is None:
         from adfusion.app.export_ros2 import MISSING
 

@@ -61,13 +61,10 @@ def _missing_inputs(args: argparse.Namespace) -> None:
 
 def _name_times(folder: str):
     """What the image file names of ``folder`` say of the frames' times."""
-    from pathlib import Path
-
     from adfusion.logs.name_times import times_from_names
-    from adfusion.logs.sources import IMAGE_SUFFIXES
+    from adfusion.logs.sources import image_names
 
-    names = sorted(p.name for p in Path(folder).iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-    return times_from_names(names)
+    return times_from_names(image_names(folder))
 
 
 def cmd_replay(args: argparse.Namespace) -> int:

@@ -4,11 +4,10 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
-from adfusion.app.commands.args import _output_file, _outputs_apart
+from adfusion.app.commands.args import _new_folder, _output_file, _outputs_apart
 from adfusion.app.errors import UsageError
 
 
@@ -28,9 +27,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         raise UsageError("--ros2 writes camera images: drop --no-render")
     _output_file(args.output)
     if args.ros2:  # checked now, not after the simulation has run
-        if os.path.lexists(args.ros2):
-            raise UsageError(f"--ros2 {args.ros2} exists: a ROS 2 bag is written as a new "
-                             "folder; give a name that does not exist")
+        _new_folder(args.ros2, "--ros2")
         _outputs_apart([("-o", args.output), ("--ros2", args.ros2)], [])
     if args.scenario == "tubsat":  # its own timeline: contact at 23:06:20 to the target
         from adfusion.app.tubsat_log import simulate_tubsat
