@@ -299,6 +299,35 @@ def acs_section(doc: dict[str, Any], command: str) -> str:
     return "\n".join(lines)
 
 
+def live_section(doc: dict[str, Any], command: str) -> str:
+    """``adfusion live``'s latency (``benchmarks/bench_live.py``): a frame on disk → its
+    estimate received by a Foxglove client, per file format."""
+    w, h = doc["frame_size"]
+    lines = [
+        "### Live latency",
+        "",
+        f"`{command}` — `adfusion live DIR` in its own process, {w}×{h} frames "
+        f"({w * h / 1e6:.1f} Mpx, {doc['fov_deg']:g}°, {doc['stars_per_frame_median']:.0f} "
+        f"stars a frame, median) written into DIR at {doc['rate_hz']:g} Hz, received by a "
+        "Foxglove-protocol client; latency = receipt of the estimate − rename of the file "
+        "(issue 36 asks ≤ 50 ms median in tracking):",
+        "",
+        "| format | file | frames (identified) | latency median | p95 | max | the run's own "
+        "median (arrival seen → published) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for fmt, r in doc["formats"].items():
+        lat, own = r["latency_ms"], r["run_latency_ms"]
+        modes = ", ".join(f"{m} {n}" for m, n in r["modes"].items())
+        lines.append(f"| {fmt.upper()} | {r['file_kb']:.0f} kB | {r['frames']} ({r['identified']}"
+                     f"; {modes}) | {lat['median']:.1f} ms | {lat['p95']:.1f} ms | "
+                     f"{lat['max']:.1f} ms | {own['median']:.1f} ms |")
+    m = doc["machine"]
+    lines += ["", f"(Python {m['python']}, {m['cores']} cores shared with other work, load "
+              f"average {m['load_average_1min']:.1f} after the run, {m['when']}.)"]
+    return "\n".join(lines)
+
+
 def fuzz_section(doc: dict[str, Any], command: str) -> str:
     names = {"reader": "MCAP reader", "solver": "solver", "sources": "sources",
              "cli": "command line", "streams": "sensor streams", "writers": "writers"}
@@ -448,6 +477,7 @@ def figures_block(docs: dict[str, Any], commands: dict[str, str] | None = None) 
            "fuzz": "python -P benchmarks/fuzz.py --minutes 30",
            "replay_inputs": "python -P benchmarks/bench_replay_inputs.py --rounds 3",
            "bench_acs": "python -P benchmarks/bench_acs.py",
+           "live": "python -P benchmarks/bench_live.py",
            "starid": "adfusion bench starid --frames 300 --conditions clean,false3,false8,"
                      "drop30_false3,sigma1,sigma2 --solvers ours,tetra3rs",
            **(commands or {})}
@@ -463,6 +493,8 @@ def figures_block(docs: dict[str, Any], commands: dict[str, str] | None = None) 
         parts.append(replay_inputs_section(docs["replay_inputs"], cmd["replay_inputs"]))
     if docs.get("bench_acs"):
         parts.append(acs_section(docs["bench_acs"], cmd["bench_acs"]))
+    if docs.get("live"):
+        parts.append(live_section(docs["live"], docs["live"].get("command", cmd["live"])))
     if docs.get("starid"):
         parts.append(starid_section(docs["starid"], cmd["starid"], docs.get("starid-before")))
     if docs.get("never_wrong"):
@@ -545,7 +577,8 @@ def main(argv: list[str] | None = None) -> int:
         doc["replay"] = bench_filters.replay_throughput(20.0)
         (RESULTS / "filters.json").write_text(json.dumps(doc, indent=1) + "\n")
     docs: dict[str, Any] = {}
-    for name in ("sweep", "renken", "filters", "replay_inputs", "bench_acs", "fuzz", "starid",
+    for name in ("sweep", "renken", "filters", "replay_inputs", "bench_acs", "live", "fuzz",
+                 "starid",
                  "starid-before", "never_wrong", "never_wrong-before"):
         f = RESULTS / f"{name}.json"
         docs[name] = json.loads(f.read_text()) if f.exists() else None

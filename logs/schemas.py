@@ -166,6 +166,20 @@ CENTROIDS = _object(
     ["xy"],
 )
 
+LIVE_STATUS = _object(
+    "adfusion.LiveStatus",
+    {
+        "t": _T,
+        "latency_ms": {"type": "number", "description": "this frame's arrival (file complete "
+                       "on disk, or grabbed from the camera) to its estimate published, "
+                       "milliseconds"},
+        "frames": {"type": "integer", "description": "frames solved so far"},
+        "dropped": {"type": "integer", "description": "frames dropped so far: they arrived "
+                    "while the solver was busy with an earlier one"},
+    },
+    ["t", "latency_ms", "frames", "dropped"],
+)
+
 GENERIC = {"$schema": DIALECT, "title": "adfusion.Json", "type": "object"}
 
 JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
@@ -178,5 +192,6 @@ JSON_SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
     "/smoothed/state": ("adfusion.FilterState", FILTER_STATE),
     "/truth/state": ("adfusion.TruthState", TRUTH_STATE),
     "/camera/centroids": ("adfusion.Centroids", CENTROIDS),
+    "/live/status": ("adfusion.LiveStatus", LIVE_STATUS),
 }
 """Topic → (schema name, JSON schema) for the JSON topics (docs/concepts/log-topics.md)."""

@@ -37,7 +37,7 @@ import struct
 import zlib
 from collections.abc import Iterable, Mapping
 from types import TracebackType
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from adfusion.logs import foxglove as fg
@@ -269,6 +269,17 @@ class _UnbufferedFile:
         self._raw.close()
 
 
+class Tee(Protocol):
+    """What :class:`LogWriter` hands every channel and message to besides the file (a live
+    view): :meth:`channel` once per topic, returning a handle that :meth:`message` gets back
+    with each message's log time (ns) and bytes."""
+
+    def channel(self, topic: str, message_encoding: str, schema_name: str,
+                schema_encoding: str, schema_data: bytes) -> Any: ...
+
+    def message(self, handle: Any, log_time_ns: int, data: bytes) -> None: ...
+
+
 class LogWriter:
     """Write one adfusion run to an MCAP file (use as a context manager, or call :meth:`close`).
 
@@ -290,6 +301,8 @@ class LogWriter:
             readable up to its last chunk). A run that fails calls :meth:`abort`: the log is
             closed with an ``incomplete`` metadata record saying why and renamed all the
             same (or removed when the disk is full).
+        tee: an object that also receives every channel and message as written (a live
+            view: :class:`Tee`); it sees the same topics, schemas and bytes as the file.
 
     Topics are registered on first use: the Foxglove ones by the typed methods, the JSON ones by
     :meth:`write_json` with the schema from :data:`logs.schemas.JSON_SCHEMAS` (or one given to
@@ -298,8 +311,11 @@ class LogWriter:
 
     def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = 1024 * 1024,
                  compression: Literal["zstd", "lz4", "none"] | None = "zstd",
-                 fsync: bool = False, start_utc: Any = None, atomic: bool = False) -> None:
+                 fsync: bool = False, start_utc: Any = None, atomic: bool = False,
+                 tee: Tee | None = None) -> None:
         self.path = os.fspath(path)
+        self._tee = tee
+        self._tee_channels: dict[int, Any] = {}
         self.clock_offset_ns = 0 if start_utc is None else utc_ns(start_utc)
         self._lock = OutputLock(self.path).acquire() if atomic else None
         try:
@@ -325,7 +341,7 @@ class LogWriter:
             self._digests["metadata:clock"] = digest_metadata(clock)
         self._channels: dict[str, tuple[int, str]] = {}
         self._json_schemas: dict[str, tuple[str, dict[str, Any]]] = dict(JSON_SCHEMAS)
-        self._proto_schemas: dict[str, int] = {}
+        self._proto_schemas: dict[str, tuple[int, tuple[str, str, bytes]]] = {}
         self._closed = False
         #: the log is complete at :attr:`path` (closed; with ``atomic``, renamed there)
         self.written = False
@@ -419,26 +435,33 @@ class LogWriter:
             return known[0]
         if kind == "json":
             name, schema = self._json_schemas.get(topic, ("adfusion.Json", GENERIC))
-            schema_id = self._writer.register_schema(
-                name=name, encoding=SchemaEncoding.JSONSchema, data=dumps(schema).encode())
+            parts = (name, SchemaEncoding.JSONSchema, dumps(schema).encode())
+            schema_id = self._writer.register_schema(name=parts[0], encoding=parts[1],
+                                                     data=parts[2])
             encoding = MessageEncoding.JSON
         else:
-            schema_id = self._proto_schemas.get(kind, 0)
+            schema_id, parts = self._proto_schemas.get(kind, (0, None))
             if not schema_id:
                 fds = build_file_descriptor_set(fg.MESSAGE_TYPES[kind])
-                schema_id = self._writer.register_schema(
-                    name=kind, encoding=SchemaEncoding.Protobuf, data=fds.SerializeToString())
-                self._proto_schemas[kind] = schema_id
+                parts = (kind, SchemaEncoding.Protobuf, fds.SerializeToString())
+                schema_id = self._writer.register_schema(name=parts[0], encoding=parts[1],
+                                                         data=parts[2])
+                self._proto_schemas[kind] = (schema_id, parts)
             encoding = MessageEncoding.Protobuf
         channel_id = self._writer.register_channel(
             topic=topic, message_encoding=encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, kind)
+        if self._tee is not None:
+            self._tee_channels[channel_id] = self._tee.channel(topic, encoding, *parts)
         return channel_id
 
     def _add(self, channel_id: int, t_ns: int, data: bytes, *parts: Any) -> None:
         """One message: ``data`` (with ``parts``, buffers that follow it in the message)."""
         if self._closed:
             raise ValueError("write to a closed LogWriter")
+        if self._tee is not None:
+            self._tee.message(self._tee_channels[channel_id], t_ns,
+                              b"".join((data, *parts)) if parts else data)
         if self._appender is not None:
             if parts:
                 pieces = (data, *parts)
@@ -457,6 +480,14 @@ class LogWriter:
     def _write_proto(self, topic: str, t_ns: int, msg: ProtoMessage) -> None:
         kind = msg.DESCRIPTOR.full_name
         self._add(self._channel(topic, kind), t_ns, msg.SerializeToString())
+
+    def declare(self, topic: str, kind: str) -> None:
+        """Register ``topic``'s channel now, before its first message (``kind``: a Foxglove
+        schema name of :data:`logs.foxglove.MESSAGE_TYPES`, or ``"json"``), so that a live
+        view's client can subscribe to it before the first message is published."""
+        if kind != "json" and kind not in fg.MESSAGE_TYPES:
+            raise ValueError(f"unknown Foxglove schema {kind!r}")
+        self._channel(topic, kind)
 
     def write_protobuf_bytes(self, topic: str, t_s: float, schema_name: str,
                              data: bytes) -> None:

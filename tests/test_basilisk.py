@@ -180,8 +180,15 @@ def test_acs_command_writes_log_and_report(tmp_path) -> None:
     assert main(["export", str(out), "--csv", str(table), "--start-utc",
                  "2025-05-01T12:00:00Z"]) == 0
     rows = table.read_text().splitlines()
-    n_states = sum(m.topic == "/estimate/state" for m in McapLogReader(out))
-    assert len(rows) == 1 + n_states and rows[1].startswith("2025-05-01T12:00:00")
+    states = [m.payload for m in McapLogReader(out) if m.topic == "/estimate/state"]
+    assert len(rows) == 1 + len(states) and rows[1].startswith("2025-05-01T12:00:00")
+    # the filter's full covariance, as a replay's log has it (issue 36): its diagonal is
+    # cov_diag, and it is symmetric
+    for s in states:
+        cov = np.asarray(s["cov"], dtype=float).reshape(6, 6)
+        assert np.allclose(np.diag(cov), np.asarray(s["cov_diag"], dtype=float), rtol=1e-12,
+                           atol=0)
+        assert np.allclose(cov, cov.T, rtol=0, atol=1e-18)
 
 
 def test_acs_json_is_the_only_thing_on_stdout(tmp_path, capfd) -> None:

@@ -121,6 +121,9 @@ def write_full_log(path: Path, n_frames: int = 6, chunk_size: int = 1024 * 1024
             cen = {"t": t, "xy": [[10.5, 20.25], [30.0, 40.0]]}
             log.write_json("/camera/centroids", t, cen)
             written.append((t, "/camera/centroids", cen))
+            live = {"t": t, "latency_ms": 12.5, "frames": i + 1, "dropped": 0}
+            log.write_json("/live/status", t, live)
+            written.append((t, "/live/status", live))
             log.write_attitude("/estimate/pose", t, _q(i))
             q_icrs_body = _q(i) * np.array([1, -1, -1, -1])
             written.append((t, "/estimate/pose", q_icrs_body))

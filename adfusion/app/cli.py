@@ -36,7 +36,8 @@ from adfusion.app.commands.catalog import cmd_catalog
 from adfusion.app.commands.demo import cmd_demo
 from adfusion.app.commands.detect import cmd_detect
 from adfusion.app.commands.export import cmd_export
-from adfusion.app.commands.replay import cmd_replay
+from adfusion.app.commands.live import add_live_parser
+from adfusion.app.commands.replay import add_replay_parser
 from adfusion.app.commands.report import cmd_report
 from adfusion.app.commands.simulate import cmd_simulate
 from adfusion.app.commands.solve import cmd_solve
@@ -153,79 +154,8 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                     "MagneticField) with rosbags; default: the MCAP log only)")
     sm.set_defaults(func=cmd_simulate)
 
-    rp = sub.add_parser(
-        "replay", help="detect → identify → filter a log, a ROS 2 bag, images or a video",
-        description="Replay INPUT — one of our MCAP logs, a ROS 2 bag in MCAP (a rosbag2 "
-                    "folder or its .mcap), a folder of images, or a video file — through "
-                    "detection, identification and the filter into an MCAP log (with "
-                    "OUT.layout.json for Foxglove beside it).")
-    rp.add_argument("input", help="MCAP log, ROS 2 bag, image folder or video file")
-    rp.add_argument("-o", "--output", required=True, help="output .mcap")
-    g = rp.add_argument_group("input")
-    g.add_argument("--imu", metavar="FILE", help="gyro/magnetometer samples: CSV (t_s, "
-                   "gyro_x..z rad/s, mag_x..z nT) or a PX4 ULog (.ulg); without it: the "
-                   "input's own, else the frames alone (the filter estimates the rate)")
-    g.add_argument("--imu-offset", type=finite_float, default=0.0, metavar="S",
-                   help="seconds added to every gyro and magnetometer time, to put the IMU's "
-                        "clock on the frames' (the replay's 'gyro clock' problem says by how "
-                        "much)")
-    g.add_argument("--camera", metavar="FILE", help="camera model: OpenCV camera YAML, ROS "
-                   "camera_info YAML, or camera.json (without it: the input's, else --fov)")
-    g.add_argument("--fov", metavar="DEG|LO:HI", help="horizontal field of view (a "
-                   "pinhole camera of the frame size) when there is no camera model: degrees "
-                   "or a range LO:HI, searched for lost-in-space (without it: the input's "
-                   "camera model or --camera)")
-    g.add_argument("--fps", type=positive_float, help="frame rate of a folder or video (frame i at "
-                   "i/fps s; without it: --timestamps, the times in the file names, or the "
-                   "video's own rate)")
-    g.add_argument("--timestamps", metavar="CSV", help="frame times of a folder: CSV with "
-                   "columns filename,t_s (without it: --fps or the times in the file names)")
-    g.add_argument("--start-utc", metavar="TIME", help="UTC time of t = 0 (ISO 8601, e.g. "
-                   "1995-11-07T08:07:00Z): log times in UTC (without it: the input's or "
-                   "its file names', else times from 0 s; export then asks for it)")
-    g.add_argument("--mount", metavar="W,X,Y,Z", help="camera mounting q_body_cam (rotates "
-                   "camera vectors into the body frame), scalar first (without it: the "
-                   "input's configuration, --config, or --assume-defaults' identity)")
-    g.add_argument("--exposure", type=float, metavar="S", help="camera exposure, seconds "
-                   "(tracking models the motion smear; default: the log's)")
-    g.add_argument("--gyro-arw", type=float, metavar="RAD/√S", help="gyro angle random walk "
-                   "(default: the log's, else 1e-4)")
-    g.add_argument("--gyro-rrw", type=float, metavar="RAD/S/√S", help="gyro rate random walk"
-                   " (default: the log's, else 1e-6)")
-    g.add_argument("--heads", metavar="K,K", help="cameras of a several-camera log to fuse "
-                   "(default all; e.g. 0 for the first alone)")
-    g.add_argument("--image-topic", help="ROS 2 bag: the image topic (default: by type)")
-    g.add_argument("--imu-topic", help="ROS 2 bag: the Imu topic (default: by type)")
-    g.add_argument("--mag-topic", help="ROS 2 bag: the MagneticField topic (default: by type)")
-    g.add_argument("--config", metavar="JSON",
-                   help="the run configuration (q_body_cam, gyro noise, camera, mag_limit) "
-                        "for a log that lacks its config metadata (without it: the log's, "
-                        "else --mount or --assume-defaults)")
-    g.add_argument("--assume-defaults", action="store_true",
-                   help="replay a log without configuration with an identity camera mount "
-                        "and default noise (recorded in the output)")
-    g = rp.add_argument_group("detection and identification")
-    g.add_argument("--sigma", type=float, help="detection threshold, noise sigmas (default 5)")
-    g.add_argument("--fov-error", type=float, default=0.0, metavar="DEG",
-                   help="± uncertainty of the field of view for lost-in-space (default 0)")
-    g.add_argument("--mag-limit", type=magnitude_limit, default=None,
-                   help="catalogue limit, V (default: the log's, else 6.5, as solve)")
-    g.add_argument("--epoch", type=float, help="catalogue epoch, Julian year (default: the "
-                   "log's, else its start time's, else 2000)")
-    g = rp.add_argument_group("filter and output")
-    g.add_argument("--no-gyro", action="store_true", help="ignore the gyro (video only: the "
-                   "filter estimates the rate)")
-    g.add_argument("--no-mag", action="store_true", help="ignore the magnetometer")
-    g.add_argument("--compression", choices=["auto", "lz4", "zstd", "none"], default="auto",
-                   help="output chunk compression (default auto: none for logs with camera "
-                        "images — noisy video gains 2 %% — else lz4; zstd: smallest)")
-    g.add_argument("--json", action="store_true", help="print the summary as JSON")
-    g.add_argument("--smooth", action="store_true",
-                   help="also smooth the whole log (GTSAM) into /smoothed/state and "
-                        "/smoothed/pose")
-    g.add_argument("--smoother", choices=["batch", "isam2"], default="batch",
-                   help="with --smooth: Levenberg–Marquardt batch (default) or iSAM2")
-    rp.set_defaults(func=cmd_replay)
+    add_replay_parser(sub)
+    add_live_parser(sub)
 
     ex = sub.add_parser("export", help="flight-dynamics products of a replayed log (AEM, ACM, "
                         "CSV, ROS 2 bag)")

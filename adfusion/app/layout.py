@@ -30,8 +30,9 @@ def _plot(title: str, paths: list[tuple[str, str]], y_label: str) -> dict[str, A
         "yAxisLabel": y_label}
 
 
-def foxglove_layout(truth: bool = True) -> dict[str, Any]:
-    """The layout as a dict (JSON-ready); ``truth`` adds the error plot and truth frame."""
+def foxglove_layout(truth: bool = True, live: bool = False) -> dict[str, Any]:
+    """The layout as a dict (JSON-ready); ``truth`` adds the error plot and truth frame,
+    ``live`` a plot of each frame's latency and the frames dropped (``/live/status``)."""
     err, att = topics.ESTIMATE_ERROR, topics.ESTIMATE_ATTITUDE
     error_paths = [(f"{err}.error_deg[0]", "x error [deg]"), (f"{err}.sigma3_deg[0]", "x 3σ"),
                    (f"{err}.error_deg[1]", "y error [deg]"), (f"{err}.sigma3_deg[1]", "y 3σ"),
@@ -73,5 +74,11 @@ def foxglove_layout(truth: bool = True) -> dict[str, Any]:
                                          "second": "StateTransitions!mode",
                                          "splitPercentage": 60}}},
     }
+    if live:  # the latency beside the stars per frame
+        config["Plot!latency"] = _plot("Latency, arrival → estimate (ms); frames dropped", [
+            (f"{topics.LIVE_STATUS}.latency_ms", "latency [ms]"),
+            (f"{topics.LIVE_STATUS}.dropped", "dropped")], "ms")
+        stars = layout["second"]["second"]["second"]
+        stars["first"] = {"direction": "row", "first": "Plot!stars", "second": "Plot!latency"}
     return {"configById": config, "globalVariables": {}, "userNodes": {},
             "playbackConfig": {"speed": 1.0}, "layout": layout}

@@ -161,10 +161,12 @@ class McapLogModule(sysModel.SysModel):
                 log.write_annotations(t, xy, identified=ident, predicted_xy=predicted)
         if rec.q_body_icrs is not None:
             nis = rec.nis.get("star fix")
-            log.write_json("/estimate/state", t, {
-                "t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
-                "cov_diag": rec.sigma_rad**2, "nis": nis, "mode": rec.star_mode,
-                "rejected": [list(x) for x in rec.rejected]})
+            state = {"t": t, "q_body_icrs": rec.q_body_icrs, "bias": rec.bias_rad_s,
+                     "cov_diag": rec.sigma_rad**2, "nis": nis, "mode": rec.star_mode,
+                     "rejected": [list(x) for x in rec.rejected]}
+            if rec.cov is not None:  # the full P, row-major, as a replay's log has it
+                state["cov"] = rec.cov.reshape(-1)
+            log.write_json("/estimate/state", t, state)
             log.write_attitude("/estimate/pose", t, rec.q_body_icrs)
             log.write_tf(t, [("icrs", "body", rot.inverse(rec.q_body_icrs), (0.0, 0.0, 0.0)),
                              ("body", "camera", self._q_body_cam, (0.0, 0.0, 0.0))])

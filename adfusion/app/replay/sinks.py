@@ -104,6 +104,7 @@ class ReplaySummary:
     # stream the run had and used
     streams: dict[str, dict[str, float]] = field(default_factory=dict)
     frames_without_gyro: int = 0  # frames met during a gyro outage (gyro_max_age_s)
+    live: dict[str, Any] = field(default_factory=dict)  # adfusion live's record (LiveSink)
 
     def as_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -118,6 +119,8 @@ class ReplaySummary:
                      smoothed_inside_3sigma=float(np.mean(es <= 3 * ss)))
         if not self.smoother:
             d.pop("smoother")
+        if not self.live:
+            d.pop("live")
         if len(e):
             d.update(error_rms_deg=float(np.sqrt(np.mean(e**2))), error_max_deg=float(e.max()),
                      error_p95_deg=float(np.percentile(e, 95)))
@@ -169,6 +172,8 @@ class ReplaySummary:
             lines.append(f"{d['frames_per_s']:.1f} frames/s end to end ({self.wall_s:.1f} s"
                          f"{setup})")
         lines += streams_lines(self.streams, self.frames_without_gyro, self.frames)
+        if self.live:
+            lines.append(live_line(self.live))
         lines += [f"input problem: {p}" for p in (self.problems or
                                                   ([self.problem] if self.problem else []))]
         return printable("\n".join(lines))  # a name that is not UTF-8 as \\xNN
@@ -184,6 +189,27 @@ def _printable(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return type(value)(_printable(v) for v in value)
     return value
+
+
+def live_line(record: dict[str, Any]) -> str:
+    """The summary's line of an ``adfusion live`` run (its ``live`` record).
+
+    >>> live_line({"frames_arrived": 12, "frames_dropped": 2, "frames_taken": 10,
+    ...            "latency_ms": {"median": 14.2, "p95": 21.0, "max": 30.0},
+    ...            "ended_by": "no frame for 5 s"})  # doctest: +NORMALIZE_WHITESPACE
+    'live: 12 frame(s) arrived, 10 solved, 2 dropped (they came while the solver was busy);
+     latency 14.2 ms median, 21.0 ms p95 (arrival to estimate published); ended: no frame
+     for 5 s'
+    """
+    lat = record.get("latency_ms") or {}
+    pace = (f"; latency {lat['median']:.1f} ms median, {lat['p95']:.1f} ms p95 (arrival to "
+            "estimate published)" if lat else "")
+    early = record.get("frames_dropped_before_ready", 0)
+    early = f", {early} of them before it was ready" if early else ""
+    dropped = (f"{record['frames_dropped']} dropped (they came while the solver was busy"
+               f"{early})" if record["frames_dropped"] else "none dropped")
+    return (f"live: {record['frames_arrived']} frame(s) arrived, {record['frames_taken']} "
+            f"solved, {dropped}{pace}; ended: {record['ended_by']}")
 
 
 def streams_lines(streams: dict[str, dict[str, float]], frames_without_gyro: int = 0,
@@ -285,11 +311,13 @@ class LogSink:
     trip; each frame adds ``/starid/solution``, ``/camera/annotations``, and with an
     estimate ``/estimate/state``, ``/estimate/attitude`` (degrees), ``/estimate/pose`` and
     ``/tf``. With a known start time (``Run.start_utc``) the log times are UTC. Other sinks
-    write their products through :attr:`log` before it closes."""
+    write their products through :attr:`log` before it closes. ``tee`` (a
+    :class:`~adfusion.logs.writer.Tee`, the live view) receives every message as written."""
 
-    def __init__(self, path, compression: str = "lz4") -> None:
+    def __init__(self, path, compression: str = "lz4", tee=None) -> None:
         self.path = path
         self.compression = compression
+        self.tee = tee
         self.log: LogWriter | None = None
         self.q_body_cam = np.asarray(rot.IDENTITY)
         self.estimator = None
@@ -305,7 +333,7 @@ class LogSink:
         self.run = run
         # written under a temporary name, renamed when complete (LogWriter atomic)
         self.log = LogWriter(self.path, compression=self.compression,
-                             start_utc=run.start_utc, atomic=True)
+                             start_utc=run.start_utc, atomic=True, tee=self.tee)
         try:
             self._start(run)
         except BaseException as exc:  # not opened, so never closed: end the log here

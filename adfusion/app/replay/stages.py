@@ -41,6 +41,15 @@ _KINDS = {topics.GYRO: (GYRO, 0), topics.MAG: (MAG, 0), topics.TRUTH_STATE: (TRU
 _OTHER = (OTHER, 0)
 
 
+def is_frame(topic: str) -> bool:
+    """Whether ``topic`` carries a camera's frames (images or centroids, any camera).
+
+    >>> is_frame("/camera2/centroids"), is_frame("/imu/gyro")
+    (True, False)
+    """
+    return _KINDS.get(topic, _OTHER)[0] == FRAME
+
+
 @dataclass(slots=True)
 class Step:
     """One message on its way through the stages.
