@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["MagCalibration", "twostep"]
+__all__ = ["MagAlignment", "MagCalibration", "attitude_aided", "twostep"]
 
 Array = NDArray[np.float64]
 
@@ -234,3 +234,87 @@ def _spread(centred: Array) -> str:
     spread = np.linalg.eigvalsh(u.T @ u / len(u))
     return (f"the field was seen along too few directions (spread {spread.round(3)} of 1/3 "
             "each for a full sphere): rotate the vehicle through more attitudes")
+
+
+@dataclass
+class MagAlignment:
+    """The full magnetometer model fitted against known attitudes: ``B = S·b + h``, where
+    ``b`` is the reference field in the body frame (the star-fixed attitude applied to the
+    IGRF). ``S`` holds the soft iron and the alignment: ``S⁻¹ = O·P`` with ``P`` the
+    symmetric factor (what TWOSTEP sees) and ``O`` the rotation from the magnetometer's
+    axes to the body's (:attr:`alignment`).
+
+    Attributes:
+        soft_iron: ``S`` (3×3). hard_iron_nT: ``h``.
+        cov: 12×12 covariance of (S row by row, h).
+        residual_nT: RMS of ``B − S b − h`` per axis.
+        observable / weak: as :class:`MagCalibration`.
+    """
+
+    soft_iron: Array
+    hard_iron_nT: Array
+    cov: Array
+    residual_nT: float
+    observable: bool
+    weak: list[str] = field(default_factory=list)
+
+    @property
+    def alignment(self) -> Array:
+        """``O``, the rotation of ``S⁻¹ = O·P`` (magnetometer axes → body axes)."""
+        u, _, vt = np.linalg.svd(np.linalg.inv(self.soft_iron))
+        return u @ vt
+
+    @property
+    def alignment_angle_rad(self) -> float:
+        o = self.alignment
+        return float(np.arccos(np.clip((np.trace(o) - 1) / 2, -1.0, 1.0)))
+
+    def correct(self, b_meas_nT: ArrayLike) -> Array:
+        """``S⁻¹ (B − h)``: the field in the body frame, nT."""
+        b = np.asarray(b_meas_nT, dtype=np.float64)
+        return np.linalg.solve(self.soft_iron, (b - self.hard_iron_nT).T).T
+
+
+def attitude_aided(b_meas_nT: ArrayLike, b_ref_body_nT: ArrayLike, *, sigma_nT: float,
+                   sigma_ref_nT: float = 0.0) -> MagAlignment:
+    """``S`` and ``h`` of ``B = S·b + h`` by linear least squares, with ``b_ref_body_nT``
+    (N, 3) the reference field in the body frame at each sample (the filter's star-fixed
+    attitude applied to the IGRF): 12 unknowns, the alignment included. ``sigma_ref_nT``
+    adds the reference's error (the IGRF's, and the attitude's: |b|·σ_θ) per axis. A
+    design that does not determine every term (too little rotation) is reported weak.
+
+    Example:
+        >>> import numpy as np
+        >>> rng = np.random.default_rng(0)
+        >>> b = rng.normal(0, 30000, (300, 3))          # the field seen every way round
+        >>> S = np.eye(3) + 0.02 * rng.standard_normal((3, 3))
+        >>> fit = attitude_aided(b @ S.T + [500, -200, 90] + rng.normal(0, 20, b.shape), b,
+        ...                      sigma_nT=20)
+        >>> fit.observable, bool(np.abs(fit.soft_iron - S).max() < 1e-3)
+        (True, True)
+    """
+    bm = np.asarray(b_meas_nT, dtype=np.float64).reshape(-1, 3)
+    br = np.asarray(b_ref_body_nT, dtype=np.float64).reshape(-1, 3)
+    if len(bm) != len(br) or len(bm) < 4:
+        raise ValueError(f"attitude_aided needs ≥ 4 paired samples, got {len(bm)} and "
+                         f"{len(br)}")
+    if not (np.all(np.isfinite(bm)) and np.all(np.isfinite(br)) and sigma_nT > 0):
+        raise ValueError("measurements and reference must be finite, sigma_nT > 0")
+    x = np.hstack([br, np.ones((len(br), 1))])  # each axis of B: a row of S and h_i
+    xtx = x.T @ x
+    coef, *_ = np.linalg.lstsq(x, bm, rcond=None)  # (4, 3): column i = (S_i·, h_i)
+    s_mat, h = coef[:3].T, coef[3]
+    resid = bm - x @ coef
+    # the reference's error reaches B through S (≈ I): the same variance on each axis
+    var = sigma_nT**2 + sigma_ref_nT**2
+    inv = np.linalg.pinv(xtx) * var
+    cov = np.zeros((12, 12))
+    for i in range(3):  # S's row i and h_i share the design's inverse
+        idx = [3 * i, 3 * i + 1, 3 * i + 2, 9 + i]
+        cov[np.ix_(idx, idx)] = inv
+    weak = []
+    sd_s = np.sqrt(np.diag(inv)[:3])
+    if sd_s.max() > WEAK_D_SIGMA:
+        weak.append(f"soft iron and alignment 1σ up to {sd_s.max():.3g} (> {WEAK_D_SIGMA:g})"
+                    ": " + _spread(br))
+    return MagAlignment(s_mat, h, cov, float(np.sqrt(np.mean(resid**2))), not weak, weak)
