@@ -1,0 +1,208 @@
+"""Gyro calibration from the star fixes: scale factors, misalignment and bias over a whole
+log (issue 35).
+
+A gyro measures ``ω_m = (I + K) ω + β + η``: ``K`` holds the scale-factor errors (its
+diagonal, 10³–10⁴ ppm on real units) and the axis misalignment (off the diagonal, mrad),
+``β`` the bias (taken constant over the log), ``η`` the angle random walk's white rate.
+Between two star fixes the gyro, corrected by ``(K, β)``, must turn the body as the fixes
+say. :func:`gyro_calibration` fits the 12 terms to that, by Gauss–Newton over every
+interval between consecutive fixes at once, and weighs the residuals as they are
+correlated: the interval ``k``'s residual is ``e_{k+1} − e_k + w_k`` (each fix's error
+``e`` is shared by the two intervals it ends and starts), so their covariance is
+tridiagonal, ``2σ_fix² + σ_arw²·Δt`` on the diagonal and ``−σ_fix²`` beside it, and the
+least squares is generalised by it (not the plain sum of squares, which would claim
+twice the information).
+
+A term the motion does not excite (the scale of an axis about which the vehicle never
+turned, the misalignment between two axes never turned about together) has a 1σ as large
+as its plausible range: it is reported as unobservable (:attr:`GyroCalibration.weak`, its
+value NaN), and the others are fitted without it.
+
+Example:
+    >>> import numpy as np
+    >>> from adfusion.maths import rotations as rot
+    >>> t = np.arange(0, 120, 0.02)                                   # 50 Hz, 2 min
+    >>> omega = np.stack([0.05 * np.sin(0.11 * t), 0.04 * np.cos(0.07 * t),
+    ...                   0.06 * np.sin(0.05 * t + 1)], 1)            # rad/s, body
+    >>> K = np.array([[4e-3, 2e-3, 0], [-1e-3, -3e-3, 1e-3], [0, 2e-3, 5e-3]])
+    >>> meas = omega @ (np.eye(3) + K).T + [1e-4, -2e-4, 5e-5]
+    >>> q = [np.array([1.0, 0, 0, 0])]
+    >>> for w in omega[:-1]:                                          # the true attitude
+    ...     q.append(rot.multiply(rot.exp_map(-w * 0.02), q[-1]))
+    >>> fix = slice(0, None, 50)                                      # a fix a second
+    >>> cal = gyro_calibration(t, meas, t[fix], np.array(q)[fix], sigma_fix_rad=1e-6,
+    ...                        arw_rad_sqrt_s=1e-7)
+    >>> cal.observable, bool(np.abs(cal.K - K).max() < 1e-4)
+    (True, True)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import solveh_banded
+
+from adfusion.maths import rotations as rot
+
+__all__ = ["GyroCalibration", "gyro_calibration"]
+
+Array = NDArray[np.float64]
+
+#: a scale or misalignment term whose 1σ exceeds this is not determined (2 %: above any
+#: real gyro's error, so a value that uncertain says nothing)
+WEAK_K_SIGMA = 0.02
+#: a bias whose 1σ exceeds this (rad/s, ~40°/h) is not determined
+WEAK_BIAS_SIGMA = 2e-4
+
+_NAMES = [f"K[{i}{j}]" for i in range(3) for j in range(3)] + ["bias x", "bias y", "bias z"]
+
+
+@dataclass
+class GyroCalibration:
+    """``ω = (I + K)⁻¹ (ω_m − β)``: the fitted gyro (body axes, rad/s).
+
+    Attributes:
+        K: scale factors (diagonal) and misalignment (off-diagonal), 3×3; NaN where not
+            determined.
+        bias_rad_s: ``β``; NaN where not determined.
+        cov: 12×12 covariance of (K row by row, β); NaN rows for undetermined terms.
+        residual_before_rad / residual_after_rad: RMS interval residual with ``K = 0``
+            and the log's mean bias fitted alone, and with the whole fit.
+        observable: every term determined; weak: those that are not, by name.
+        intervals: intervals between fixes used.
+    """
+
+    K: Array
+    bias_rad_s: Array
+    cov: Array
+    residual_before_rad: float
+    residual_after_rad: float
+    observable: bool
+    weak: list[str] = field(default_factory=list)
+    intervals: int = 0
+
+    @property
+    def scale_ppm(self) -> Array:
+        return np.diag(self.K) * 1e6
+
+    def correct(self, omega_meas_rad_s: ArrayLike) -> Array:
+        """``(I + K)⁻¹ (ω_m − β)`` (undetermined terms taken as 0)."""
+        k = np.nan_to_num(self.K)
+        b = np.nan_to_num(self.bias_rad_s)
+        w = np.asarray(omega_meas_rad_s, dtype=np.float64)
+        return np.linalg.solve(np.eye(3) + k, (w - b).T).T
+
+
+def _intervals(t_gyro: Array, omega: Array, t_fix: Array) -> tuple[Array, Array, Array]:
+    """The gyro samples of each interval between consecutive fixes, padded to one length:
+    ``(ω (n, m, 3), dt (n, m), kept)`` — each sample held until the next (zero-order), cut
+    at the fixes; ``kept`` the intervals with samples all through."""
+    n = len(t_fix) - 1
+    idx = np.searchsorted(t_gyro, t_fix, side="right") - 1  # the sample in force at each fix
+    m = int(np.max(idx[1:] - idx[:-1])) + 1
+    w = np.zeros((n, m, 3))
+    dt = np.zeros((n, m))
+    kept = np.ones(n, dtype=bool)
+    for k in range(n):
+        a, b = idx[k], idx[k + 1]
+        if a < 0 or b >= len(t_gyro) or a > b:
+            kept[k] = False
+            continue
+        times = np.concatenate([[t_fix[k]], t_gyro[a + 1:b + 1], [t_fix[k + 1]]])
+        steps = np.diff(times)
+        w[k, :len(steps)] = omega[a:b + 1]
+        dt[k, :len(steps)] = steps
+    return w, dt, kept
+
+
+def _turns(w: Array, dt: Array, k: Array, bias: Array) -> Array:
+    """The body's turn over each interval from the corrected gyro, ``R_{k+1} R_kᵀ``
+    (P, n, 3, 3), for ``P`` parameter sets ``k`` (P, 3, 3) and ``bias`` (P, 3); ``w``
+    (n, m, 3) and ``dt`` (n, m) as :func:`_intervals` gives them."""
+    inv = np.linalg.inv(np.eye(3) + k)  # (P, 3, 3)
+    corr = np.einsum("pab,pnmb->pnma", inv, w[None] - bias[:, None, None, :])
+    # R_body_icrs turns as dR/dt = −[ω×] R: over a step, R ← exp(−ω dt) R
+    r = np.broadcast_to(np.eye(3), (len(k), len(w), 3, 3)).copy()
+    for j in range(w.shape[1]):
+        r = rot.to_matrix(rot.exp_map(-corr[:, :, j, :] * dt[None, :, j, None])) @ r
+    return r
+
+
+def gyro_calibration(t_gyro_s: ArrayLike, omega_meas_rad_s: ArrayLike, t_fix_s: ArrayLike,
+                     q_fix_body_icrs: ArrayLike, *, sigma_fix_rad: float,
+                     arw_rad_sqrt_s: float, iterations: int = 8) -> GyroCalibration:
+    """Scale factors, misalignment and bias of a gyro (``omega_meas_rad_s`` (N, 3) at
+    ``t_gyro_s``) from star fixes (``q_fix_body_icrs`` (M, 4) at ``t_fix_s``, each good
+    to ``sigma_fix_rad`` per axis), the gyro's angle random walk ``arw_rad_sqrt_s`` given.
+    See the module's text for the method and an example."""
+    tg = np.asarray(t_gyro_s, dtype=np.float64)
+    wm = np.asarray(omega_meas_rad_s, dtype=np.float64).reshape(-1, 3)
+    tf = np.asarray(t_fix_s, dtype=np.float64)
+    qf = rot.normalize(np.asarray(q_fix_body_icrs, dtype=np.float64).reshape(-1, 4))
+    if len(tf) < 6 or len(qf) != len(tf):
+        raise ValueError(f"gyro calibration needs ≥ 6 fixes with their times, got {len(qf)} "
+                         f"and {len(tf)}")
+    if len(tg) != len(wm) or np.any(np.diff(tg) <= 0) or np.any(np.diff(tf) <= 0):
+        raise ValueError("gyro and fix times must increase, one per sample")
+    w, dt, kept = _intervals(tg, wm, tf)
+    r_fix = rot.to_matrix(qf)
+    target = r_fix[1:] @ np.swapaxes(r_fix[:-1], -1, -2)  # R_{k+1} R_kᵀ, per the fixes
+    w, dt, target = w[kept], dt[kept], target[kept]
+    n = len(w)
+    span = dt.sum(axis=1)
+    # the residuals' covariance per axis: tridiagonal (consecutive intervals share a fix)
+    diag = 2 * sigma_fix_rad**2 + arw_rad_sqrt_s**2 * span
+    band = np.zeros((2, n))
+    band[1] = diag
+    band[0, 1:] = -sigma_fix_rad**2
+    contiguous = np.flatnonzero(kept)
+    band[0, 1:][np.diff(contiguous) != 1] = 0.0  # a gap: the two share no fix
+
+    def residual(theta: Array) -> Array:
+        """(P, n, 3) rotation-vector residuals for P parameter sets (P, 12)."""
+        est = _turns(w, dt, theta[:, :9].reshape(-1, 3, 3), theta[:, 9:])
+        return rot.log_map(rot.from_matrix(target[None] @ np.swapaxes(est, -1, -2)))
+
+    def gls(j: Array, r: Array) -> tuple[Array, Array]:
+        """``JᵀΣ⁻¹J`` and ``JᵀΣ⁻¹r`` (axes independent, one band for all)."""
+        cols = j.shape[-1]
+        sj = solveh_banded(band, j.reshape(n, 3 * cols))
+        sr = solveh_banded(band, r)
+        info = np.einsum("nac,nad->cd", j, sj.reshape(n, 3, cols))
+        return info, np.einsum("nac,na->c", j, sr)
+
+    theta = np.zeros(12)
+    # the log's mean bias alone first (K = 0): where it starts, and the "before" residual
+    r0 = residual(theta[None])[0]
+    theta[9:] = -r0.sum(0) / span.sum()
+    r_before = residual(theta[None])[0]
+    active = np.arange(12)
+    info = np.eye(12)
+    for _ in range(iterations):
+        eps = np.where(active >= 9, 1e-7, 1e-5)
+        probes = np.repeat(theta[None], len(active) + 1, axis=0)
+        probes[np.arange(1, len(active) + 1), active] += eps
+        res = residual(probes)
+        jac = (res[1:] - res[0]).transpose(1, 2, 0) / eps  # (n, 3, P)
+        info, g = gls(jac, -res[0])
+        step = np.linalg.lstsq(info, g, rcond=None)[0]
+        theta[active] += step
+        sd = np.sqrt(np.maximum(np.diag(np.linalg.pinv(info)), 0))
+        limit = np.where(active >= 9, WEAK_BIAS_SIGMA, WEAK_K_SIGMA)
+        if np.any(sd > limit):  # undetermined terms out, the rest fitted without them
+            theta[active[sd > limit]] = 0.0
+            active = active[sd <= limit]
+            continue
+        if np.all(np.abs(step) < 1e-9):
+            break
+    cov = np.full((12, 12), np.nan)
+    cov[np.ix_(active, active)] = np.linalg.pinv(info)
+    values = np.full(12, np.nan)
+    values[active] = theta[active]
+    r_after = residual(np.nan_to_num(values)[None])[0]
+    weak = [f"{_NAMES[i]}: not excited by this motion" for i in range(12) if i not in active]
+    return GyroCalibration(values[:9].reshape(3, 3), values[9:], cov,
+                           float(np.sqrt(np.mean(r_before**2))),
+                           float(np.sqrt(np.mean(r_after**2))), not weak, weak, n)
