@@ -149,6 +149,10 @@ def build_parser(bench: bool = True) -> argparse.ArgumentParser:
                     help="seed of every noise source (default 0)")
     sm.add_argument("--no-render", action="store_true",
                     help="write star centroids instead of rendered images (fast)")
+    sm.add_argument("--sensor-errors", action="store_true",
+                    help="random magnetometer hard/soft iron and gyro scale/misalignment of "
+                         "the seed, stated in the log's config (sensor_errors) for a "
+                         "calibration to find")
     sm.add_argument("--ros2", metavar="DIR", help="also write the flight as a ROS 2 bag "
                     "(a rosbag2 folder, MCAP storage; Image + CameraInfo + Imu + "
                     "MagneticField) with rosbags; default: the MCAP log only)")

@@ -11,11 +11,16 @@ from adfusion.app.commands.args import _new_folder, _output_file, _outputs_apart
 from adfusion.app.errors import UsageError
 
 
-def _scenario(name: str, duration: float, seed: int, render: bool):
+def _scenario(name: str, duration: float, seed: int, render: bool, errors: bool = False):
     from adfusion.sensors import scenarios
 
     make = scenarios.leo_three_heads if name == "leo3" else getattr(scenarios, name)
-    return make(duration_s=duration, seed=seed, render=render)
+    sc = make(duration_s=duration, seed=seed, render=render)
+    if errors:
+        from adfusion.sensors.errors import with_sensor_errors
+
+        with_sensor_errors(sc)
+    return sc
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -29,6 +34,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     if args.ros2:  # checked now, not after the simulation has run
         _new_folder(args.ros2, "--ros2")
         _outputs_apart([("-o", args.output), ("--ros2", args.ros2)], [])
+    if args.sensor_errors and args.scenario == "tubsat":
+        raise UsageError("--sensor-errors: the tubsat pass has no gyro or magnetometer log")
     if args.scenario == "tubsat":  # its own timeline: contact at 23:06:20 to the target
         from adfusion.app.tubsat_log import simulate_tubsat
 
@@ -38,8 +45,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
               f"(1σ budget {res.predicted_sigma_deg:.2f}°) → {args.output}")
         return 0 if res.ok else 1
     t0 = time.perf_counter()
-    n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render),
-                 args.output, progress=sys.stderr.isatty())
+    n = simulate(_scenario(args.scenario, args.duration, args.seed, not args.no_render,
+                           args.sensor_errors), args.output, progress=sys.stderr.isatty())
     print(f"{args.scenario}: {n} frames, {args.duration:g} s, seed {args.seed} → "
           f"{args.output} ({time.perf_counter() - t0:.1f} s)")
     if args.ros2:
