@@ -19,8 +19,8 @@ build and ships the cache's entries inside the package (:func:`export`, into
 ``adfusion/starid/_jit/<module>/``). Nothing in them depends on where the package lies —
 the stamp is the sources' contents, the module's name and numpy's version, and numba's
 index adds its own version and the CPU's name and features — so the first import of a
-kernel module copies its entries into numba's cache when that holds none current
-(:func:`seed`), and the first solve loads them instead of compiling (~1 min). On another
+kernel module copies its entries into numba's cache folder unless they are there already
+(:func:`seed`), and the first solve loads them instead of compiling (~1.5 min). On another
 CPU, numba or numpy the entries do not match and numba compiles, as without them
 (docs/decisions.md, "First use"). ``ADFUSION_JIT_PREBUILT`` names another folder of them.
 
@@ -252,7 +252,9 @@ def export(dest: str) -> int:
     after :func:`adfusion.starid.prepare.prepare`.
 
     >>> import tempfile
-    >>> export(tempfile.mkdtemp()) >= 0
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     n = export(folder)
+    >>> n >= 0
     True
     """
     copied = 0
