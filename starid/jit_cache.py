@@ -180,7 +180,7 @@ def _read_index(path: str) -> tuple[object, dict] | None:
 
 def _copy_atomic(src: str, dst: str) -> None:
     # another process may be reading dst or seeding it too: it sees the old file or the new
-    tmp = f"{dst}.tmp.{uuid.uuid4().hex[:16]}"
+    tmp = f"{dst}.tmp.{uuid.uuid4().hex}"
     try:
         shutil.copyfile(src, tmp)
         os.replace(tmp, dst)
