@@ -11,7 +11,8 @@ left out) and of each compiler pass. ``warm``: each variant's cache, once filled
 process that times the
 lost-in-space solve of the real frames' detections (the median of ``--reps`` passes over
 all of them, µs a frame), again in turns. ``--variants`` lists environment settings, one
-variant each (``-`` is the default, ``NUMBA_OPT=0`` …).
+variant each (``-`` is the default, ``NUMBA_OPT=0`` …; ``+`` joins two; ``PYTHON=PATH``
+runs that interpreter instead, e.g. a venv's that ``pip install .`` filled).
 
 Usage (from the repository root)::
 
@@ -77,6 +78,8 @@ def _env_of(variant: str) -> dict[str, str]:
 
 
 def _run(cmd: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess]:
+    env = dict(env)
+    cmd = [env.pop("PYTHON", cmd[0]), *cmd[1:]]
     t0 = time.perf_counter()
     p = subprocess.run(cmd, env={**os.environ, **env}, capture_output=True, text=True,
                        check=False, cwd=tempfile.gettempdir())
