@@ -1,8 +1,10 @@
 """Prepare every compiled kernel now: ``python -m adfusion.starid.prepare``.
 
-The successor of ``python -m adfusion.starid.prepare``: it compiles the lost-in-space,
-tracking and windowed-detection kernels into numba's on-disk cache (or loads them), so
-that the first solve of every later process does not wait for a compiler.
+It compiles the lost-in-space, tracking and windowed-detection kernels into numba's
+on-disk cache (or loads them), so that the first solve of every later process does not
+wait for a compiler. A wheel's build (``pip install .``) runs it and ships the entries in
+the package (:func:`adfusion.starid.jit_cache.export`); it is for editable installs and
+for a wheel built on another CPU or with another numba or numpy.
 
 Example (loads from the cache once prepared; compiles the first time)::
 
@@ -18,9 +20,9 @@ def prepare() -> float:
     """Compile every kernel a solve uses now — lost-in-space, tracking
     (:mod:`starid.tracking.kernels`) and the tracking windows' centroiding
     (:mod:`starid.detection.window_kernels`) — into numba's on-disk cache, and return the seconds
-    it took: run once after an install (``python -m
+    it took: run once after an editable install (``python -m
     adfusion.starid.prepare``), and the first solve of every later process loads the
-    compiled code (~1 s) instead of compiling it (10–40 s). The cache is keyed by the
+    compiled code (~1 s) instead of compiling it (60–120 s). The cache is keyed by the
     source's content (SHA-256), the numba version and the CPU, so it stays valid until
     one of them changes (docs/decisions.md, "First use")."""
     import time

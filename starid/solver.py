@@ -385,8 +385,9 @@ class Solver:
     def warm_up(self, triangles: bool = True) -> bool:
         """Pay the lost-in-space search's one-time costs now rather than in the first
         frames: its compiled kernels (:mod:`starid.identify.kernels`: search, verification, final
-        refit) load from numba's cache in ~1 s — or, the first time after an install unless
-        ``python -m adfusion.starid.prepare`` prepared it, compile in 15–60 s — on their first
+        refit) load from numba's cache in ~1 s (a wheel ships them compiled) — or, the first
+        time after an editable install unless ``python -m adfusion.starid.prepare`` prepared
+        it, compile in 60–120 s — on their first
         call in a process, each detection count's pattern order is computed on first
         use, and the catalogue's triangles (:mod:`starid.catalog.triangle_index`) are built —
         ~6 s the first time for V < 6 in a 15° field — or loaded from the cache

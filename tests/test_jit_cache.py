@@ -7,6 +7,7 @@ import ast
 import shutil
 from pathlib import Path
 
+import numpy as np
 from adfusion.starid import jit_cache
 from adfusion.starid.identify import frame_kernels, kernels
 
@@ -41,10 +42,11 @@ def test_the_kernels_are_cached_with_their_dependencies_in_the_stamp():
     for fn in (kernels.search, kernels.quick_checks, frame_kernels.solve_frame_packed):
         locator = fn._cache._impl.locator
         assert isinstance(locator, jit_cache._DependsLocator), fn
-        inner, ours, module = locator.get_source_stamp()
+        inner, ours, module, numpy_version = locator.get_source_stamp()
         assert inner == locator._inner.get_source_stamp()  # numba's own stamp kept
         assert ours == jit_cache.source_stamp(fn.py_func.__code__.co_filename)
         assert module == fn.py_func.__module__
+        assert numpy_version == np.__version__  # numba types numpy's calls by its rules
 
 
 def test_the_same_file_under_another_import_name_is_cached_apart():

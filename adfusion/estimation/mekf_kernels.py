@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from adfusion.starid.jit_cache import njit_cached
 
 __all__ = ["covariance_step", "warm_up"]
 
@@ -38,7 +39,7 @@ def warm_up() -> None:
     covariance_step(np.eye(6), 0.1, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@numba.njit(cache=True, nogil=True)
+@njit_cached(nogil=True)  # keyed by this file's contents, shipped compiled (jit_cache)
 def covariance_step(P: np.ndarray, dt: float, tx: float, ty: float, tz: float,
                     sv2: float, su2: float) -> np.ndarray:
     """Φ P Φᵀ + Q, symmetrised, for a step θ = (tx, ty, tz) = ω̂·dt of length ``dt`` (s),

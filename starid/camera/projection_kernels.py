@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+from adfusion.starid.jit_cache import njit_cached
 
 __all__ = ["predict_pinhole"]
 
-_jit = numba.njit(cache=True, nogil=True)
+_jit = njit_cached(nogil=True)
 
 
 @_jit

@@ -29,15 +29,15 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from adfusion.starid.catalog.cache import cached_arrays, env_size_bytes
 from adfusion.starid.catalog.pair_index import INDEX_LAYOUT, PatternIndex
+from adfusion.starid.jit_cache import njit_cached
 
 __all__ = ["CELLS_MAX", "DEFAULT_MAX_MB", "cell_rad_for", "estimate_triangles", "max_bytes",
            "triangle_table", "triangles_for"]
 
-_jit = numba.njit(cache=True, nogil=True)
+_jit = njit_cached(nogil=True)
 
 #: the table's bound (MiB) by default; past it, no table (the pair windows are scanned).
 #: 340: the catalogues and fields that had a table at 6 bytes a row under 256 MiB keep it

@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+from adfusion.starid.jit_cache import njit_cached
 
 __all__ = ["pairwise_sum32", "window_centroids"]
 
-_jit = numba.njit(cache=True, nogil=True)
+_jit = njit_cached(nogil=True)
 
 # P(X < median − 1σ) for a Gaussian (as in starid.detection.detect)
 _P_MINUS_1SIGMA = 0.15865525393145707

@@ -166,8 +166,8 @@ class ReplaySummary:
         if d["frames_per_s"]:
             after = self.frames / max(self.wall_s - self.setup_s, 1e-9)
             setup = (f", of which {self.setup_s:.1f} s setup: catalogue, solver and detection "
-                     "worker, longer on the first run after an install, which compiles the "
-                     f"star-identification search; {after:.0f} frames/s after it"
+                     "worker, longer on the first run after an editable install, which "
+                     f"compiles the star-identification search; {after:.0f} frames/s after it"
                      if self.setup_s > 2.0 else "")
             lines.append(f"{d['frames_per_s']:.1f} frames/s end to end ({self.wall_s:.1f} s"
                          f"{setup})")
