@@ -316,6 +316,7 @@ class LogWriter:
         self.path = os.fspath(path)
         self._tee = tee
         self._tee_channels: dict[int, Any] = {}
+        self.tee_error: str | None = None  # why the tee was dropped, if it was
         self.clock_offset_ns = 0 if start_utc is None else utc_ns(start_utc)
         self._lock = OutputLock(self.path).acquire() if atomic else None
         try:
@@ -452,16 +453,25 @@ class LogWriter:
             topic=topic, message_encoding=encoding, schema_id=schema_id)
         self._channels[topic] = (channel_id, kind)
         if self._tee is not None:
-            self._tee_channels[channel_id] = self._tee.channel(topic, encoding, *parts)
+            self._tee_channels[channel_id] = self._to_tee("channel", topic, encoding, *parts)
         return channel_id
+
+    def _to_tee(self, what: str, *args: Any) -> Any:
+        """Hand ``args`` to the tee's ``what``; a tee that fails is dropped, its error kept
+        in :attr:`tee_error` (the live view stops, the log goes on)."""
+        if what == "message" and args[0] is None:
+            return None
+        try:
+            return getattr(self._tee, what)(*args)
+        except Exception as exc:  # the log is the record; the view is a convenience
+            self.tee_error = f"{type(exc).__name__}: {exc}"
+            self._tee = None
+            return None
 
     def _add(self, channel_id: int, t_ns: int, data: bytes, *parts: Any) -> None:
         """One message: ``data`` (with ``parts``, buffers that follow it in the message)."""
         if self._closed:
             raise ValueError("write to a closed LogWriter")
-        if self._tee is not None:
-            self._tee.message(self._tee_channels[channel_id], t_ns,
-                              b"".join((data, *parts)) if parts else data)
         if self._appender is not None:
             if parts:
                 pieces = (data, *parts)
@@ -476,6 +486,9 @@ class LogWriter:
             self._writer.add_message(channel_id=channel_id, log_time=t_ns, data=data,
                                      publish_time=t_ns, sequence=self.message_count)
         self.message_count += 1
+        if self._tee is not None:  # after the file: a tee that fails costs the file nothing
+            self._to_tee("message", self._tee_channels.get(channel_id), t_ns,
+                         b"".join((data, *parts)) if parts else data)
 
     def _write_proto(self, topic: str, t_ns: int, msg: ProtoMessage) -> None:
         kind = msg.DESCRIPTOR.full_name

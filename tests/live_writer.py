@@ -29,6 +29,7 @@ def main() -> None:
     ap.add_argument("--slow", type=int, default=4)
     ap.add_argument("--burst", type=int, default=0)
     ap.add_argument("--interval", type=float, default=0.4)
+    ap.add_argument("--still", action="store_true", help="the sky does not turn")
     args = ap.parse_args()
     folder = Path(args.folder)
     cat = Catalog.hipparcos(mag_limit=6.5)
@@ -37,7 +38,8 @@ def main() -> None:
     q0 = rot.q_cam_icrs_from_radec_roll(np.radians(84.0), np.radians(-2.0), np.radians(10.0))
     frames = []
     for k in range(n):
-        q = rot.multiply(rot.exp_map(np.radians([0.2 * k, 0.1 * k, 0.3 * k])), q0)
+        turn = 0.0 if args.still else 1.0
+        q = rot.multiply(rot.exp_map(np.radians([0.2 * k, 0.1 * k, 0.3 * k]) * turn), q0)
         img, _, _ = render_sky(CAMERA, q, cat.vectors, cat.mag, seed=k)
         frames.append((f"f{k:03d}.png", q, img))
     truth = {name: [float(v) for v in q] for name, q, _ in frames}

@@ -154,9 +154,9 @@ def test_live_folder_written_by_another_process_streams_estimates_to_foxglove(tm
                                "--idle", "3", "-o", str(out), "--json"])
     try:
         url = _wait_for(lines, "ws://", proc).split("live view: ")[1].split(" ")[0]
+        _wait_for(lines, "ready:", proc)  # every frame topic has its channel by now
         client = FoxgloveClient(url, (topics.ESTIMATE_STATE, topics.STARID_SOLUTION,
                                       topics.LIVE_STATUS)).start()
-        _wait_for(lines, "ready:", proc)
         t0 = time.monotonic()  # the frame topics are declared before ready: subscribed to
         while not client.subscribed(topics.ESTIMATE_STATE) and time.monotonic() - t0 < 10:
             time.sleep(0.02)
@@ -381,12 +381,16 @@ def test_a_video_stream_through_opencv_is_a_camera(tmp_path):
     (["7", "--fov", "20"], "cannot open this camera"),
     (["DIR"], "--camera"),
     (["DIR", "--fov", "20", "--frames", "0"], "--frames 0"),
+    (["nowhere/frames", "--fov", "20"], "no such folder"),
+    (["FILE", "--fov", "20"], "give --realtime"),
 ])
 def test_live_usage_errors_are_one_line_exit_2(tmp_path, capsys, argv, says):
     from adfusion.app.cli import main
 
     (tmp_path / "in").mkdir()
-    argv = [str(tmp_path / "in") if a == "DIR" else a for a in argv]
+    (tmp_path / "v.avi").write_bytes(b"not really")
+    argv = [str(tmp_path / "in") if a == "DIR" else str(tmp_path / "v.avi") if a == "FILE"
+            else a for a in argv]
     code = main(["live", *argv, "--no-view", "-o", str(tmp_path / "o.mcap")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and says in err[0], err
@@ -406,3 +410,146 @@ def test_a_port_in_use_names_the_fix(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "--port" in err and "in use" in err, err
     assert not os.path.exists(tmp_path / "o.mcap")
+
+
+def test_the_imu_of_a_live_run_is_used(tmp_path):
+    """Review of issue 36: ``--imu`` was read and never used (the gyro switched off before
+    its feed existed). A still sky and a gyro at rest, each line in Unix seconds: the
+    gyro's samples are used by the filter."""
+    from adfusion.starid.camera.model import Camera
+
+    from adfusion.app.live import LiveOptions, live
+    from adfusion.app.replay import ReplayOptions
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    imu = tmp_path / "imu.csv"
+    imu.write_text("t_s,gyro_x,gyro_y,gyro_z\n")
+    stop = threading.Event()
+
+    def log_imu() -> None:
+        with open(imu, "a") as f:
+            while not stop.is_set():
+                f.write(f"{time.time():.6f},0,0,0\n")
+                f.flush()
+                time.sleep(0.01)
+
+    def write_frames() -> None:
+        time.sleep(3.0)  # after the setup
+        (tmp_path / "go").touch()
+        subprocess.run([sys.executable, "-P", str(WRITER), str(folder), "--slow", "4",
+                        "--interval", "0.3", "--still"], check=True, timeout=120)
+
+    threads = [threading.Thread(target=f, daemon=True) for f in (log_imu, write_frames)]
+    for t in threads:
+        t.start()
+    try:
+        s = live(str(folder), tmp_path / "live.mcap",
+                 LiveOptions(imu=str(imu), idle_s=4.0, view=None),
+                 ReplayOptions(camera=Camera.pinhole(640, 480, 20.0), assume_defaults=True))
+    finally:
+        stop.set()
+    assert s.streams["gyro"]["used"] > 50, s.streams
+    assert s.identified >= 3 and _metadata(tmp_path / "live.mcap", "replay")["use_gyro"]
+
+
+def test_imu_samples_wait_for_a_frame_being_read():
+    """Review of issue 36: a frame seen on disk at t but decoded 150 ms later met IMU
+    samples of t + 100 ms already handed on, and the filter refused it ('time went
+    backwards'). A frame being read holds back the samples after its time."""
+    clock = LiveClock()
+    src = LiveSource(clock, max_frames=1)
+    t0 = clock.now()
+    src.frame_pending("f.png", t0)
+    src.offer_other(parse_imu_line(f"{clock.unix0 + t0 + 0.01},0,0,0.1",
+                                   ["t_s", "gyro_x", "gyro_y", "gyro_z"], clock.unix0))
+    got: list = []
+    reader = threading.Thread(target=lambda: got.extend(src), daemon=True)
+    reader.start()
+    time.sleep(IMU_HOLD_S + 0.15)  # the sample is old enough to go, but the frame is not in
+    assert got == []
+    src.offer_frame(t0, np.zeros((4, 4), np.uint8), 0.0, "f.png")
+    reader.join(5)
+    assert [m.topic for m in got] == [topics.CAMERA_IMAGE, topics.GYRO]
+
+
+def test_a_file_written_again_under_its_name_is_a_new_frame(tmp_path):
+    """Review of issue 36: a camera program that renames each new frame onto
+    ``latest.png`` gave one frame in all."""
+    import cv2
+
+    from adfusion.app.live import LiveOptions, live
+    from adfusion.app.replay import ReplayOptions
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+
+    def write() -> None:
+        time.sleep(3.0)
+        for _ in range(3):
+            tmp = folder / ".latest.png"
+            cv2.imwrite(str(tmp), rng.integers(0, 30, (48, 64), np.uint8))
+            os.replace(tmp, folder / "latest.png")
+            time.sleep(0.5)
+
+    threading.Thread(target=write, daemon=True).start()
+    s = live(str(folder), tmp_path / "live.mcap", LiveOptions(idle_s=2.0, view=None),
+             ReplayOptions(fov_deg=20.0))
+    assert s.live["frames_arrived"] == 3
+
+
+def test_live_with_fov_and_no_frame_ends_at_its_duration(tmp_path, capsys):
+    """Review of issue 36: with --fov the setup waited for a first frame for ever, past
+    --duration. It now ends there, saying so (nothing done: exit 2)."""
+    from adfusion.app.cli import main
+
+    (tmp_path / "in").mkdir()
+    t0 = time.monotonic()
+    code = main(["live", str(tmp_path / "in"), "--fov", "20", "--duration", "2", "--no-view",
+                 "-o", str(tmp_path / "o.mcap")])
+    assert code == 2 and time.monotonic() - t0 < 30
+    assert "no frame in" in capsys.readouterr().err
+
+
+def test_a_failed_setup_lets_go_of_the_feeds(tmp_path):
+    """Review of issue 36: a feed opened before a later step failed (a port in use) kept
+    its socket (or camera) open. It is released: the same UDP port binds again."""
+    from adfusion.app.live import LiveOptions, live
+    from adfusion.app.replay import ReplayOptions
+
+    (tmp_path / "in").mkdir()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as u:
+        u.bind(("127.0.0.1", 0))
+        udp_port = u.getsockname()[1]
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        with pytest.raises(ValueError, match="in use"):
+            live(str(tmp_path / "in"), tmp_path / "o.mcap",
+                 LiveOptions(imu=f"udp://127.0.0.1:{udp_port}",
+                             view=("127.0.0.1", busy.getsockname()[1])),
+                 ReplayOptions(fov_deg=20.0))
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as again:
+        again.bind(("127.0.0.1", udp_port))
+
+
+def test_a_failing_tee_costs_the_log_nothing(tmp_path):
+    """Review of issue 36: the log handed each message to the live view before writing
+    it, so a view that failed lost it from the file too."""
+    from adfusion.logs import McapLogReader
+    from adfusion.logs.writer import LogWriter
+
+    class Broken:
+        def channel(self, *args):
+            return "ch"
+
+        def message(self, handle, t, data):
+            raise RuntimeError("client went away")
+
+    with LogWriter(tmp_path / "a.mcap", tee=Broken()) as log:
+        for k in range(3):
+            log.write_json("/imu/gyro", 0.1 * k, {"omega": [0.0, 0.0, float(k)]})
+        assert log.tee_error == "RuntimeError: client went away"
+    got = [m.payload["omega"][2] for m in McapLogReader(tmp_path / "a.mcap")]
+    assert got == [0.0, 1.0, 2.0]

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from adfusion.app.errors import UsageError
 from adfusion.app.replay.stages import is_frame
 from adfusion.imagefiles import ImageFileError, read_frame_file
 from adfusion.logs import Message, topics
@@ -85,18 +86,29 @@ class _Thread:
     def _run(self) -> None:
         try:
             self._loop()
-        except Exception as exc:
+        except Exception as exc:  # the feed ends, the run says why
             self.sink.feed_ended(self, f"{self.name}: {exc}")
             return
+        finally:
+            self.release()
         self.sink.feed_ended(self, None)
 
     def _loop(self) -> None:  # pragma: no cover - overridden
         raise NotImplementedError
 
+    def release(self) -> None:
+        """Let go of what the feed holds (a camera, a socket); idempotent."""
+
     def stop(self) -> None:
         self._stop.set()
         if self._thread is not None and self._thread is not threading.current_thread():
             self._thread.join(timeout=2.0)
+
+    def close(self) -> None:
+        """:meth:`stop`, and :meth:`release` for a feed that never ran."""
+        self.stop()
+        if self._thread is None or not self._thread.is_alive():
+            self.release()
 
 
 class FolderFeed(_Thread):
@@ -106,8 +118,16 @@ class FolderFeed(_Thread):
     :data:`POLL_S` apart and it reads as a whole image (:func:`adfusion.imagefiles.read_frame_file`
     refuses one cut short); a writer still writing is waited for, one that writes under a
     hidden name (``.name``) or a ``.tmp``/``.part`` name and renames is seen when renamed.
-    Files there before the start are left alone unless ``include_existing``. A file that
-    stays unreadable for ``give_up_s`` is dropped and counted (:attr:`unreadable`)."""
+    A file written again under a name already taken (a camera program that overwrites
+    ``latest.png``) is a new frame. Files there before the start are left alone unless
+    ``include_existing``. A file that stays unreadable for ``give_up_s`` is dropped and
+    counted (:attr:`unreadable`).
+
+    The folder is listed only when its own modification time changes (a file added,
+    renamed or removed), so a look costs the same with 20 000 files as with 20; the
+    files being written are looked at each time. A frame's time is its file's
+    modification time on the run's clock when that lies between the previous frame's and
+    now (frames written in a burst keep their spacing), else when it was seen."""
 
     name = "folder"
 
@@ -119,8 +139,11 @@ class FolderFeed(_Thread):
             raise FileNotFoundError(f"{folder}: no such folder")
         self.give_up_s = give_up_s
         self.unreadable: list[str] = []
-        self._done: set[str] = set() if include_existing else set(self._names())
+        # name → (size, mtime) of the version taken (or there at the start)
+        self._done: dict[str, tuple[int, int]] = {} if include_existing else {
+            n: self._key(n) for n in self._names()}
         self.existing = len(self._done)
+        self._t_last = -1.0
 
     def _names(self) -> list[str]:
         try:
@@ -130,35 +153,59 @@ class FolderFeed(_Thread):
         except FileNotFoundError:
             raise FileNotFoundError(f"{self.folder}: the folder went away") from None
 
+    def _key(self, name: str) -> tuple[int, int]:
+        try:
+            st = os.stat(self.folder / name)
+        except FileNotFoundError:
+            return (-1, -1)
+        return st.st_size, st.st_mtime_ns
+
     def _loop(self) -> None:
         seen: dict[str, tuple[int, int, float]] = {}  # name → size, mtime, since (perf)
         clock = self.sink.clock
+        listed_at = None
         while not self._stop.is_set():
-            for name in self._names():
-                if name in self._done:
+            try:
+                folder_mtime = os.stat(self.folder).st_mtime_ns
+            except FileNotFoundError:
+                raise FileNotFoundError(f"{self.folder}: the folder went away") from None
+            if folder_mtime != listed_at:
+                listed_at = folder_mtime
+                names = self._names()
+                fresh = [n for n in names if n not in self._done]
+                if not fresh:  # something replaced under a name taken before
+                    fresh = [n for n in names if self._key(n) != self._done[n]]
+                for n in fresh:
+                    seen.setdefault(n, (-2, -2, time.perf_counter()))
+            for name in sorted(seen):
+                key = self._key(name)
+                size, mtime, since = seen[name]
+                if key[0] < 0:  # gone before it was read
+                    seen.pop(name)
+                    self.sink.frame_abandoned(name)
                     continue
-                try:
-                    st = os.stat(self.folder / name)
-                except FileNotFoundError:  # renamed or removed between the two calls
-                    continue
-                key = (st.st_size, st.st_mtime_ns)
-                before = seen.get(name)
-                if before is None or before[:2] != key:
+                if (size, mtime) != key:
                     seen[name] = (*key, time.perf_counter())
+                    self.sink.frame_pending(name, seen[name][2] - clock.p0)
                     continue
                 try:
                     image = read_frame_file(self.folder / name)
                 except (ImageFileError, OSError) as exc:
-                    if time.perf_counter() - before[2] > self.give_up_s:
-                        self._done.add(name)
-                        seen.pop(name, None)
+                    if time.perf_counter() - since > self.give_up_s:
+                        self._done[name] = key
+                        seen.pop(name)
                         self.unreadable.append(str(exc))
+                        self.sink.frame_abandoned(name)
                     continue
-                self._done.add(name)
-                seen.pop(name, None)
+                self._done[name] = key
+                seen.pop(name)
                 # it arrived when it first showed its final size (one look before this)
-                arrived = before[2]
-                self.sink.offer_frame(arrived - clock.p0, image, arrived, name)
+                t_seen = since - clock.p0
+                t_file = key[1] * 1e-9 - clock.unix0
+                t = t_file if self._t_last < t_file <= t_seen else max(t_seen,
+                                                                       self._t_last + 1e-6)
+                self._t_last = t
+                self.sink.offer_frame(t, image, since, name)
             self._stop.wait(POLL_S)
 
 
@@ -186,26 +233,26 @@ class CameraFeed(_Thread):
                              "index such as 0, an rtsp:// or http:// URL, or a GStreamer "
                              "pipeline; `v4l2-ctl --list-devices` lists the cameras)")
 
+    def release(self) -> None:
+        self._cap.release()
+
     def _loop(self) -> None:
         from adfusion.logs.sources import to_grey
 
         clock = self.sink.clock
         misses = 0
-        try:
-            while not self._stop.is_set():
-                ok, frame = self._cap.read()
-                arrived = time.perf_counter()
-                if not ok or frame is None:
-                    misses += 1
-                    if misses >= 3:  # a stream that ended, or a camera unplugged
-                        return
-                    self._stop.wait(0.05)
-                    continue
-                misses = 0
-                self.sink.offer_frame(arrived - clock.p0, np.ascontiguousarray(to_grey(frame)),
-                                      arrived)
-        finally:
-            self._cap.release()
+        while not self._stop.is_set():
+            ok, frame = self._cap.read()
+            arrived = time.perf_counter()
+            if not ok or frame is None:
+                misses += 1
+                if misses >= 3:  # a stream that ended, or a camera unplugged
+                    return
+                self._stop.wait(0.05)
+                continue
+            misses = 0
+            self.sink.offer_frame(arrived - clock.p0, np.ascontiguousarray(to_grey(frame)),
+                                  arrived)
 
 
 class PacedFeed(_Thread):
@@ -288,6 +335,15 @@ class _ImuFeed(_Thread):
         self.bad: list[str] = []
         self.lines = 0
 
+    def _bad(self, why: str) -> None:
+        """A line dropped: counted, and said at once the first time (not only at the end)."""
+        if not self.bad:
+            import warnings
+
+            warnings.warn(f"{self.name}: {why}; such lines are dropped and counted",
+                          stacklevel=2)
+        self.bad.append(why)
+
     def _take(self, lines: Iterable[str], columns: Sequence[str]) -> None:
         clock = self.sink.clock
         out: list[Message] = []
@@ -299,11 +355,11 @@ class _ImuFeed(_Thread):
                 msgs = parse_imu_line(line, columns, clock.unix0)
             except ValueError as exc:
                 shown = line.strip()[:60]
-                self.bad.append(f"{exc} in the line '{shown}'")
+                self._bad(f"{exc} in the line '{shown}'")
                 continue
             if msgs and abs(msgs[0].t_s - clock.now()) > 3600:
-                self.bad.append(f"t_s {msgs[0].t_s + clock.unix0:.6g} is not a Unix time "
-                                "within the hour (IMU lines carry Unix seconds, UTC)")
+                self._bad(f"t_s {msgs[0].t_s + clock.unix0:.6g} is not a Unix time within "
+                          "the hour (IMU lines carry Unix seconds, UTC)")
                 continue
             out.extend(msgs)
         if out:
@@ -324,6 +380,7 @@ class ImuFileFeed(_ImuFeed):
             raise FileNotFoundError(f"--imu {path}: no such file (create it, even empty, "
                                     "before the run: lines are read as they are added)")
         self._had = self.path.stat().st_size  # what is there at the start is the past
+        self._skip_partial = False
 
     def _loop(self) -> None:
         with open(self.path, "rb") as f:
@@ -332,15 +389,21 @@ class ImuFileFeed(_ImuFeed):
                 data += f.read()  # an empty file: its header comes first
                 if b"\n" not in data:
                     self._stop.wait(POLL_S)
-            header, _, rest = data.partition(b"\n")
+            header = data.partition(b"\n")[0]
             columns = [c.strip() for c in header.decode("utf-8", "replace").split(",")]
             start = len(header) + 1
-            if "t_s" not in columns:  # no header: the UDP order (that line is the past)
+            if "t_s" not in columns:  # no header: the UDP order
                 columns = list(UDP_COLUMNS)
-            # the lines there at the start are the past: read on from where the file ended
-            partial = rest[max(self._had - start, 0):]
+                start = 0 if self._had == 0 else start  # written after the start: data
+            # what was there at the start is the past: read on from where the file ended,
+            # after the rest of a line being written then
+            pos = max(self._had, start)
+            partial = data[pos:]
+            self._skip_partial = pos > 0 and data[pos - 1:pos] != b"\n"
             while not self._stop.is_set():
                 *lines, partial = partial.split(b"\n")
+                if lines and self._skip_partial:  # the rest of the line being written
+                    lines, self._skip_partial = lines[1:], False
                 if lines:
                     self._take([ln.decode("utf-8", "replace") for ln in lines], columns)
                 chunk = f.read()
@@ -376,16 +439,16 @@ class ImuUdpFeed(_ImuFeed):
     def port(self) -> int:
         return self._sock.getsockname()[1]
 
+    def release(self) -> None:
+        self._sock.close()
+
     def _loop(self) -> None:
-        try:
-            while not self._stop.is_set():
-                try:
-                    data = self._sock.recv(65536)
-                except TimeoutError:
-                    continue
-                self._take(data.decode("utf-8", "replace").splitlines(), UDP_COLUMNS)
-        finally:
-            self._sock.close()
+        while not self._stop.is_set():
+            try:
+                data = self._sock.recv(65536)
+            except TimeoutError:
+                continue
+            self._take(data.decode("utf-8", "replace").splitlines(), UDP_COLUMNS)
 
 
 def imu_feed(spec: str) -> _ImuFeed:
@@ -396,9 +459,16 @@ def imu_feed(spec: str) -> _ImuFeed:
 
 
 def frame_feed(spec: str, *, include_existing: bool = False) -> _Thread:
-    """The frame feed of ``SOURCE`` (not ``--realtime``): a folder, else a camera."""
+    """The frame feed of ``SOURCE`` (not ``--realtime``): a folder, else a camera; a file
+    (a recording) or a path that is not there is said as such."""
     if os.path.isdir(spec):
         return FolderFeed(spec, include_existing=include_existing)
+    if os.path.isfile(spec):
+        raise UsageError(f"{spec}: a file is a recording: give --realtime to play it at its "
+                         "pace (or `adfusion replay` to solve it as fast as it goes)")
+    if not (spec.isdigit() or "://" in spec or spec.startswith("file:") or "!" in spec):
+        raise FileNotFoundError(f"{spec}: no such folder (a live SOURCE is a folder, a "
+                                "camera index, a stream URL or a GStreamer pipeline)")
     return CameraFeed(spec)
 
 

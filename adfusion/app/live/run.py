@@ -15,6 +15,7 @@ Example (a folder that another program fills; here the frames are already there)
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -73,6 +74,11 @@ _FRAME_TOPICS = ((topics.CAMERA_IMAGE, "foxglove.RawImage"),
                  (topics.TF, "foxglove.FrameTransforms"), (topics.LIVE_STATUS, "json"))
 
 
+#: how often the camera model is published again (s): Foxglove draws the annotations
+#: with it, and a viewer that connected late would never get the one of the start
+CALIBRATION_EVERY_S = 5.0
+
+
 class LiveSink:
     """The live record: after each frame, ``/live/status`` (its latency from arrival to the
     estimate written and published, frames solved and dropped so far); at the end, the
@@ -90,8 +96,11 @@ class LiveSink:
     def open(self, run: Any) -> None:
         # every topic of a frame declared now: a client that connects before the first
         # frame subscribes to them all, and misses none of the first messages
-        for topic, kind in _FRAME_TOPICS:
+        imu = ((topics.GYRO, "json"), (topics.MAG, "json")) if self.source.has_gyro else ()
+        for topic, kind in (*_FRAME_TOPICS, *imu):
             self.log.log.declare(topic, kind)
+        self.camera = run.camera
+        self._calibration_t = 0.0
 
     def take(self, step: Step) -> None:
         if step.kind != FRAME:
@@ -105,6 +114,12 @@ class LiveSink:
             self.latency_ms.append(ms)  # a frame that waited for the setup is not the pace
         self.log.log.write_json(topics.LIVE_STATUS, step.msg.t_s, {
             "t": step.msg.t_s, "latency_ms": ms, "frames": src.taken, "dropped": src.dropped})
+        if step.msg.t_s - self._calibration_t >= CALIBRATION_EVERY_S and step.head == 0:
+            # the camera model again: a viewer that connected after the start has none
+            self._calibration_t = step.msg.t_s
+            cam = self.camera
+            self.log.log.write_calibration(step.msg.t_s, cam.width, cam.height, cam.K, cam.D,
+                                           "camera")
 
     def _record(self) -> dict[str, Any]:
         src = self.source
@@ -114,6 +129,7 @@ class LiveSink:
         self.record = {"source": src.name, "frames_arrived": src.arrived,
                        "frames_dropped": src.dropped,
                        "frames_dropped_before_ready": src.dropped_before_ready,
+                       "frames_dropped_at_end": src.dropped_at_end,
                        "frames_taken": src.taken,
                        "latency_ms": stats, "ended_by": src.ended_by or "a failure"}
         return self.record
@@ -150,13 +166,22 @@ class _LiveLayout(LayoutSink):
 
 class _Stop:
     """Ctrl-C (and SIGTERM) end the run as its source's end does: the output complete. A
-    second Ctrl-C interrupts as usual (the output then marked incomplete)."""
+    second Ctrl-C interrupts as usual (the output then marked incomplete) — except once the
+    frames have ended and the output is being finished (:meth:`finishing`): an interrupt
+    there could cut the log's closing and lose it all, so it is said and ignored."""
 
     def __init__(self, stop: threading.Event) -> None:
         self.stop = stop
         self.old: dict[int, Any] = {}
+        self.closing = False
+
+    def finishing(self) -> None:
+        self.closing = True
 
     def _handle(self, signum: int, frame: Any) -> None:
+        if self.closing:
+            print("adfusion live: finishing the output, a moment", file=sys.stderr)
+            return
         if self.stop.is_set() and signum == signal.SIGINT:
             raise KeyboardInterrupt
         self.stop.set()
@@ -196,53 +221,55 @@ def live(source: str, out_path: str | Path, options: LiveOptions | None = None,
     clock = LiveClock()
     stop = threading.Event()
     inner = None
-    if options.realtime:
-        args = dict(options.input_args or {})
-        if options.imu:
-            args["imu"] = options.imu
-        inner = open_input(source, **args)
-        if hasattr(inner, "preflight"):
-            inner.preflight()
-        frames: Any = PacedFeed(inner, options.speed)
-        imu = None
-    else:
-        frames = frame_feed(source, include_existing=options.include_existing)
-        imu = imu_feed(options.imu) if options.imu else None
-    src = LiveSource(clock, name=str(source), inner=inner, max_frames=options.max_frames,
+    src = LiveSource(clock, name=str(source), max_frames=options.max_frames,
                      duration_s=options.duration_s, idle_s=options.idle_s, stop=stop)
-    src.size_not_needed = replay_options.camera is not None
-    if not src.has_gyro and replay_options.use_gyro:
-        replay_options.use_gyro = False  # frames alone: the filter estimates the rate
     view = None
     summary = ReplaySummary()
-    try:
+    guard = _Stop(stop)
+    try:  # every feed made is closed again, whatever fails after it
+        if options.realtime:
+            args = dict(options.input_args or {})
+            if options.imu:
+                args["imu"] = options.imu
+            inner = open_input(source, **args)
+            if hasattr(inner, "preflight"):
+                inner.preflight()
+            src.use_recording(inner)
+            src.frame_feed = PacedFeed(inner, options.speed)
+        else:
+            src.frame_feed = frame_feed(source, include_existing=options.include_existing)
+            src.imu_feed = imu_feed(options.imu) if options.imu else None
+        src.size_not_needed = replay_options.camera is not None
+        if not src.has_gyro and replay_options.use_gyro:
+            replay_options.use_gyro = False  # frames alone: the filter estimates the rate
         if options.view is not None:
             from adfusion.app.live.view import FoxgloveView
 
             view = FoxgloveView(*options.view)
-        existing = getattr(frames, "existing", 0)
+            say(f"live view: {view.url} (Foxglove: Open connection → Foxglove WebSocket; "
+                f"layout: {layout_path})")
+        existing = getattr(src.frame_feed, "existing", 0)
         say((f"playing {source} at {options.speed:g}× its recorded pace" if options.realtime
              else f"watching {source}")
             + (f" (its {existing} file(s) already there left alone: --include-existing "
-               "solves them)" if existing else "") + "; Ctrl-C ends the run")
+               "solves them)" if existing else "")
+            + ("; the setup waits for the first frame (its size is the camera's: --camera "
+               "FILE is ready before it)" if not (options.realtime or src.size_not_needed)
+               else "") + "; Ctrl-C ends the run")
         log = LogSink(out_path, "none", tee=view)
         sink = LiveSink(log, src, summary)
         sinks = [_LiveLayout(out_path), log, sink, SummarySink(summary, t_start=clock.p0)]
+
         def ready() -> None:
             if options.realtime:  # a recording waits for the solver: nothing is lost to it
-                src.start(frames, imu)
-            if view is not None:
-                # said once every topic of a frame has its channel: a client that connects
-                # now is told of them all at once (the SDK may refuse a subscription to a
-                # channel advertised while the client was connecting: "Unknown channel ID")
-                say(f"live view: {view.url} (Foxglove: Open connection → Foxglove "
-                    f"WebSocket; layout: {layout_path})")
+                src.start()
             say("ready: frames are solved as they arrive")
 
         src.on_ready = ready
-        with _Stop(stop):
+        src.on_end = guard.finishing  # a second Ctrl-C must not cut the output's closing
+        with guard:
             if not options.realtime:  # frames land whether we are ready or not
-                src.start(frames, imu)
+                src.start()
             run(src, sinks, replay_options, progress=False, ahead=_Inline())
         summary.live = sink.record
     finally:

@@ -52,10 +52,11 @@ class LiveSource:
                  idle_s: float | None = None, stop: threading.Event | None = None) -> None:
         self.clock = clock
         self.name = name
-        self.inner = inner
-        self.config: dict[str, Any] = dict(getattr(inner, "config", {}) or {})
-        self.start_utc = getattr(inner, "start_utc", None) if inner is not None \
-            else clock.start_utc
+        self.inner = None
+        self.config: dict[str, Any] = {}
+        self.start_utc: str | None = clock.start_utc
+        if inner is not None:
+            self.use_recording(inner)
         self.max_frames = max_frames
         self.duration_s = duration_s
         self.idle_s = idle_s
@@ -63,6 +64,7 @@ class LiveSource:
         self.frame_feed: Feed | None = None
         self.imu_feed: Feed | None = None
         self._cond = threading.Condition()
+        self._pending: dict[str, float] = {}  # frames seen, not yet read: their times
         self._slot: tuple[Message, float] | None = None
         self._imu: deque[Message] = deque()
         self._ended: list[str | None] = []  # the frame feed's end (its reason, or None)
@@ -81,21 +83,46 @@ class LiveSource:
         self.ready_perf: float | None = None
         self.dropped_before_ready = 0
         self.on_ready = None  # called once, when the first frame is asked for
+        self.on_end = None  # called once, when the frames have ended
+        self.dropped_at_end = 0  # a frame still waiting when the run ended
         #: the camera is known (``--camera``): the setup does not wait for a first frame
         self.size_not_needed = False
 
     # ------------------------------------------------------------------ feeds side
-    def start(self, frames: Feed, imu: Feed | None = None) -> None:
-        self.frame_feed, self.imu_feed = frames, imu
-        frames.start(self)
-        if imu is not None:
-            imu.start(self)
+    def use_recording(self, inner: Any) -> None:
+        """A recording (``--realtime``) is the run's input: its camera, configuration and
+        start time."""
+        self.inner = inner
+        self.config = dict(getattr(inner, "config", {}) or {})
+        self.start_utc = getattr(inner, "start_utc", None)
+
+    def start(self, frames: Feed | None = None, imu: Feed | None = None) -> None:
+        """Start the feeds (``frames``/``imu``, or those already set)."""
+        self.frame_feed = frames or self.frame_feed
+        self.imu_feed = imu or self.imu_feed
+        self.frame_feed.start(self)
+        if self.imu_feed is not None:
+            self.imu_feed.start(self)
+
+    def frame_pending(self, key: str, t_s: float) -> None:
+        """A frame of time ``t_s`` is being read (a file seen, not yet decoded): IMU samples
+        after it wait for it, so the filter never meets its time going back."""
+        with self._cond:
+            self._pending[key] = t_s
+
+    def frame_abandoned(self, key: str) -> None:
+        with self._cond:
+            self._pending.pop(key, None)
+            self._cond.notify_all()
 
     def offer_frame(self, t_s: float, image: Any, arrived_perf: float, name: str = "") -> None:
         """A frame (an image array, or a recorded :class:`Message`) that arrived at
         ``arrived_perf``; replaces a frame not yet taken (counted as dropped)."""
         msg = image if isinstance(image, Message) else Message(t_s, topics.CAMERA_IMAGE, image)
         with self._cond:
+            self._pending.pop(name, None)
+            if self.ended_by:  # after the end: not the run's
+                return
             self.arrived += 1
             if self._slot is not None:
                 self.dropped += 1
@@ -120,11 +147,11 @@ class LiveSource:
             self._cond.notify_all()
 
     def close(self) -> None:
-        """Stop the feeds."""
+        """Stop the feeds and release what they hold (a camera, a socket), started or not."""
         self.stop.set()
         for feed in (self.frame_feed, self.imu_feed):
             if feed is not None:
-                feed.stop()
+                feed.close()
 
     # ------------------------------------------------------------------ Source side
     def camera_model(self) -> dict[str, Any] | None:
@@ -159,9 +186,13 @@ class LiveSource:
             return self._size
         with self._cond:
             while self._size is None and not self._ended and not self.stop.is_set():
+                if self.duration_s is not None and self.clock.now() >= self.duration_s:
+                    break  # (--idle counts once ready: a camera may start late)
                 self._cond.wait(0.05)
             if self._size is None:
-                why = "stopped" if self.stop.is_set() else (self._ended[0] or "the source ended")
+                why = ("stopped" if self.stop.is_set() else
+                       (self._ended[0] or "the source ended") if self._ended else
+                       f"no frame in {self.clock.now():.0f} s (--duration)")
                 raise ValueError(f"{self.name}: {why} before the first frame arrived (its size "
                                  "is the camera's, with --fov)")
             return self._size
@@ -220,6 +251,10 @@ class LiveSource:
                         self.ended_by = why
                         out = list(self._imu)  # the samples already here are the run's
                         self._imu.clear()
+                        if self._slot is not None:  # arrived, never taken: dropped
+                            self._slot = None
+                            self.dropped += 1
+                            self.dropped_at_end += 1
                         break
                     if self._slot is not None:
                         msg, arrived = self._slot
@@ -231,6 +266,8 @@ class LiveSource:
                         self.arrivals[msg.t_s] = arrived
                         break
                     old = self.clock.now() - IMU_HOLD_S if self.inner is None else None
+                    if old is not None and self._pending:  # a frame being read goes first
+                        old = min(old, min(self._pending.values()))
                     while self._imu and (old is None or self._imu[0].t_s <= old):
                         out.append(self._imu.popleft())
                     if out:
@@ -239,4 +276,6 @@ class LiveSource:
             out.sort(key=lambda m: m.t_s)
             yield from out
             if self.ended_by:
+                if self.on_end is not None:
+                    self.on_end()
                 return

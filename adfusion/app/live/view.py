@@ -44,6 +44,9 @@ class FoxgloveView:
         from adfusion.app.layout import foxglove_layout
 
         self._fg = foxglove
+        # the SDK's own notes (a port probe: "Dropping client …: handshake failed") are
+        # not the user's business on the console
+        foxglove.set_log_level("ERROR")
         self._layout = json.dumps(foxglove_layout(truth=False, live=True)).encode()
         self.context = foxglove.Context()
         try:
@@ -82,7 +85,7 @@ class FoxgloveView:
 
     def message(self, handle: Any, log_time_ns: int, data: bytes) -> None:
         """Publish one message (the server sends it to the clients subscribed)."""
-        handle.log(bytes(data), log_time=int(log_time_ns))
+        handle.log(data if isinstance(data, bytes) else bytes(data), log_time=int(log_time_ns))
 
     def close(self) -> None:
         """Stop the server (idempotent)."""

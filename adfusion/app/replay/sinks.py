@@ -197,7 +197,8 @@ def live_line(record: dict[str, Any]) -> str:
     >>> live_line({"frames_arrived": 12, "frames_dropped": 2, "frames_taken": 10,
     ...            "latency_ms": {"median": 14.2, "p95": 21.0, "max": 30.0},
     ...            "ended_by": "no frame for 5 s"})  # doctest: +NORMALIZE_WHITESPACE
-    'live: 12 frame(s) arrived, 10 solved, 2 dropped (they came while the solver was busy);
+    'live: 12 frame(s) arrived, 10 taken by the solver, 2 dropped (they came while the solver
+     was busy);
      latency 14.2 ms median, 21.0 ms p95 (arrival to estimate published); ended: no frame
      for 5 s'
     """
@@ -209,7 +210,7 @@ def live_line(record: dict[str, Any]) -> str:
     dropped = (f"{record['frames_dropped']} dropped (they came while the solver was busy"
                f"{early})" if record["frames_dropped"] else "none dropped")
     return (f"live: {record['frames_arrived']} frame(s) arrived, {record['frames_taken']} "
-            f"solved, {dropped}{pace}; ended: {record['ended_by']}")
+            f"taken by the solver, {dropped}{pace}; ended: {record['ended_by']}")
 
 
 def streams_lines(streams: dict[str, dict[str, float]], frames_without_gyro: int = 0,
