@@ -262,6 +262,14 @@ def test_a_recording_at_its_pace_gives_the_replays_attitudes(tmp_path):
     _, inside_replay, p95_replay = scored(tmp_path / "replay.mcap")
     assert n_live == rec["frames_taken"] >= 80
     assert inside_live >= inside_replay - 0.05 and p95_live <= 1.5 * p95_replay
+    # its report says it was live: the title, the live line, the latency plot
+    assert main(["report", str(out), "-o", str(tmp_path / "rep")]) == 0
+    summary = (tmp_path / "rep" / "summary.md").read_text()
+    assert summary.startswith("# Live report") and "taken by the solver" in summary
+    assert (tmp_path / "rep" / "latency.png").stat().st_size > 0
+    assert main(["report", str(tmp_path / "replay.mcap"), "-o", str(tmp_path / "rep2")]) == 0
+    assert not (tmp_path / "rep2" / "latency.png").exists()
+    assert (tmp_path / "rep2" / "summary.md").read_text().startswith("# Replay report")
 
 
 def test_the_solver_slot_keeps_the_newest_frame_and_counts_the_rest():

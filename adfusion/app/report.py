@@ -60,7 +60,7 @@ class _Log:
 
     def __init__(self, path, progress: bool = False) -> None:
         self.reader = reader = McapLogReader(path)
-        est, sm, truth, sol, err = [], [], [], [], []
+        est, sm, truth, sol, err, live = [], [], [], [], [], []
         messages = iter(reader)
         if progress:
             from tqdm import tqdm
@@ -78,6 +78,8 @@ class _Log:
                 sol.append((m.t_s, m.payload))
             elif m.topic == topics.ESTIMATE_ERROR:
                 err.append(m.payload)
+            elif m.topic == topics.LIVE_STATUS:
+                live.append(m.payload)
         if not est:
             raise UsageError(f"{path}: no {topics.ESTIMATE_STATE} messages, nothing to report: "
                              "replay the log first (adfusion replay INPUT -o OUT.mcap)")
@@ -104,15 +106,18 @@ class _Log:
         self.sol_t = np.array([t for t, _ in sol], dtype=float)
         self.sol = [p for _, p in sol]
         self.err = err
+        self.live = live  # /live/status of an `adfusion live` run
 
     def truth_at(self, t: np.ndarray) -> np.ndarray:
         k = np.clip(np.searchsorted(self.truth_t, t - 1e-9), 0, len(self.truth_t) - 1)
         return k
 
 
-#: the files :func:`report` writes into its folder
+#: the files :func:`report` writes into its folder (``LIVE_REPORT_FILES`` for a live run's
+#: log only)
+LIVE_REPORT_FILES = ("latency.png",)
 REPORT_FILES = ("attitude_error.png", "nis.png", "stars.png", "residuals.png", "solve_time.png",
-                "bias.png", "boresight_track.png", "summary.md", "report.html")
+                "bias.png", "boresight_track.png", "latency.png", "summary.md", "report.html")
 
 
 def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False) -> list[Path]:
@@ -130,6 +135,14 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
         _attitude_error(log, out, lines), _nis(log, out, lines), _stars(log, out, lines),
         _residuals(log, out, lines), _solve_time(log, out, lines), _bias(log, out, lines),
         _track(log, out)]
+    record = log.reader.metadata.get("live")
+    if log.live:  # an `adfusion live` run: its pace
+        files.append(_latency(log, out, lines))
+    if isinstance(record, dict) and "frames_arrived" in record:
+        from adfusion.app.replay.sinks import live_line
+
+        lines.append(live_line(record))
+    title = "Live report" if log.live or record else "Replay report"
     # how much of each input stream the run had and used (as the replay's summary said),
     # then damage found reading the log, the run's input problems and dropped counts, an
     # incomplete run, the defaults it assumed
@@ -138,7 +151,7 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
     lines += [f"note: {n}" for n in log_assumed(log.reader)]
     name = Path(log_path).name
     md = out / "summary.md"
-    md.write_text("\n".join([f"# Replay report: {name}", ""] + [f"- {x}" for x in lines]
+    md.write_text("\n".join([f"# {title}: {name}", ""] + [f"- {x}" for x in lines]
                             + ["", "Plots: " + ", ".join(f"[{f.name}]({f.name})"
                                                          for f in files), ""]))
     page = out / "report.html"
@@ -150,7 +163,7 @@ def report(log_path: str | Path, out_dir: str | Path, *, progress: bool = False)
         "<!DOCTYPE html><html><head><meta charset='utf-8'>"
         f"<title>adfusion report: {html.escape(name)}</title><style>body{{font-family:"
         "sans-serif;max-width:1100px;margin:auto} img{max-width:100%} figure{margin:1em 0}"
-        f"</style></head><body><h1>Replay report: {html.escape(name)}</h1><ul>"
+        f"</style></head><body><h1>{title}: {html.escape(name)}</h1><ul>"
         + "".join(f"<li>{html.escape(x)}</li>" for x in lines) + f"</ul>{figs}</body></html>")
     return [*files, md, page]
 
@@ -363,6 +376,28 @@ def _residuals(log: _Log, out: Path, lines: list[str]) -> Path:
            title="Residuals of the identified stars at the solution")
     ax.grid(alpha=0.3)
     return _save(fig, out / "residuals.png")
+
+
+def _latency(log: _Log, out: Path, lines: list[str]) -> Path:
+    """A live run's latency per frame (arrival → estimate published) and the frames
+    dropped so far (``/live/status``)."""
+    import matplotlib.pyplot as plt
+
+    t = np.array([p["t"] for p in log.live], float)
+    ms = np.array([p["latency_ms"] for p in log.live], float)
+    dropped = np.array([p["dropped"] for p in log.live], float)
+    fig, ax = plt.subplots(figsize=(10, 3.2))
+    ax.plot(t, ms, ".", ms=3, color="tab:blue",
+            label=f"latency (median {np.median(ms):.1f} ms, p95 {np.percentile(ms, 95):.1f})")
+    ax.set(xlabel="t [s]", ylabel="latency [ms]",
+           title="Live: frame arrival → estimate published")
+    ax.grid(alpha=0.3)
+    right = ax.twinx()
+    right.step(t, dropped, where="post", color="tab:red", label="frames dropped so far")
+    right.set_ylabel("dropped")
+    handles = ax.get_legend_handles_labels()[0] + right.get_legend_handles_labels()[0]
+    ax.legend(handles, [h.get_label() for h in handles], loc="upper left", fontsize=8)
+    return _save(fig, out / "latency.png")
 
 
 def _solve_time(log: _Log, out: Path, lines: list[str]) -> Path:
