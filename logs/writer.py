@@ -459,8 +459,6 @@ class LogWriter:
     def _to_tee(self, what: str, *args: Any) -> Any:
         """Hand ``args`` to the tee's ``what``; a tee that fails is dropped, its error kept
         in :attr:`tee_error` (the live view stops, the log goes on)."""
-        if what == "message" and args[0] is None:
-            return None
         try:
             return getattr(self._tee, what)(*args)
         except Exception as exc:  # the log is the record; the view is a convenience
@@ -482,13 +480,13 @@ class LogWriter:
                                          len(data))
         else:
             if parts:
-                data = b"".join((data, *parts))
+                data, parts = b"".join((data, *parts)), ()
             self._writer.add_message(channel_id=channel_id, log_time=t_ns, data=data,
                                      publish_time=t_ns, sequence=self.message_count)
         self.message_count += 1
-        if self._tee is not None:  # after the file: a tee that fails costs the file nothing
-            self._to_tee("message", self._tee_channels.get(channel_id), t_ns,
-                         b"".join((data, *parts)) if parts else data)
+        handle = self._tee_channels.get(channel_id) if self._tee is not None else None
+        if handle is not None:  # after the file: a tee that fails costs the file nothing
+            self._to_tee("message", handle, t_ns, b"".join((data, *parts)) if parts else data)
 
     def _write_proto(self, topic: str, t_ns: int, msg: ProtoMessage) -> None:
         kind = msg.DESCRIPTOR.full_name

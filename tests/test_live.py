@@ -561,3 +561,32 @@ def test_a_failing_tee_costs_the_log_nothing(tmp_path):
         assert log.tee_error == "RuntimeError: client went away"
     got = [m.payload["omega"][2] for m in McapLogReader(tmp_path / "a.mcap")]
     assert got == [0.0, 1.0, 2.0]
+
+
+@pytest.mark.parametrize("library_path", [False, True])
+def test_the_tee_gets_the_very_bytes_of_the_file(tmp_path, library_path):
+    """A frame is written in pieces (header, pixels, trailer). On mcap's own writing path
+    (the fallback when our appender does not fit the installed mcap) the pieces were
+    joined for the file and then joined again for the tee: the view got the pixels twice."""
+    from adfusion.logs.writer import LogWriter
+    from mcap.reader import make_reader
+
+    class Recording:
+        def __init__(self):
+            self.got = []
+
+        def channel(self, topic, *args):
+            return topic
+
+        def message(self, topic, t, data):
+            self.got.append((topic, t, bytes(data)))
+
+    tee = Recording()
+    with LogWriter(tmp_path / "a.mcap", tee=tee) as log:
+        if library_path:
+            log._appender = None  # as when _MessageAppender.of finds another mcap
+        log.write_image(0.5, np.arange(48, dtype=np.uint8).reshape(6, 8))
+    with open(tmp_path / "a.mcap", "rb") as f:
+        on_file = [(ch.topic, m.log_time, bytes(m.data))
+                   for _, ch, m in make_reader(f).iter_messages()]
+    assert tee.got == on_file and len(on_file) == 1
