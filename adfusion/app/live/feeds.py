@@ -29,7 +29,7 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -474,4 +474,3 @@ def frame_feed(spec: str, *, include_existing: bool = False) -> _Thread:
 
 #: for type hints of callers
 Feed = _Thread
-OfferFrame = Callable[[float, Any, float], None]

@@ -86,10 +86,9 @@ class LiveSink:
     maximum, why the run ended). Given after the :class:`LogSink`, so a frame's estimate is
     out before its latency is taken."""
 
-    def __init__(self, log: LogSink, source: LiveSource, summary: ReplaySummary) -> None:
+    def __init__(self, log: LogSink, source: LiveSource) -> None:
         self.log = log
         self.source = source
-        self.summary = summary
         self.latency_ms: list[float] = []
         self.record: dict[str, Any] = {}
 
@@ -150,12 +149,7 @@ class _LiveLayout(LayoutSink):
     incomplete output."""
 
     def open(self, run: Any) -> None:
-        import json
-
-        from adfusion.app.layout import foxglove_layout
-        from adfusion.outfiles import write_atomic
-
-        write_atomic(self.path, json.dumps(foxglove_layout(truth=False, live=True), indent=2))
+        self.write()
 
     def close(self) -> None:
         pass
@@ -257,8 +251,9 @@ def live(source: str, out_path: str | Path, options: LiveOptions | None = None,
                "FILE is ready before it)" if not (options.realtime or src.size_not_needed)
                else "") + "; Ctrl-C ends the run")
         log = LogSink(out_path, "none", tee=view)
-        sink = LiveSink(log, src, summary)
-        sinks = [_LiveLayout(out_path), log, sink, SummarySink(summary, t_start=clock.p0)]
+        sink = LiveSink(log, src)
+        sinks = [_LiveLayout(out_path, live=True), log, sink,
+                 SummarySink(summary, t_start=clock.p0)]
 
         def ready() -> None:
             if options.realtime:  # a recording waits for the solver: nothing is lost to it

@@ -96,10 +96,8 @@ class LiveSource:
         self.config = dict(getattr(inner, "config", {}) or {})
         self.start_utc = getattr(inner, "start_utc", None)
 
-    def start(self, frames: Feed | None = None, imu: Feed | None = None) -> None:
-        """Start the feeds (``frames``/``imu``, or those already set)."""
-        self.frame_feed = frames or self.frame_feed
-        self.imu_feed = imu or self.imu_feed
+    def start(self) -> None:
+        """Start the feeds (:attr:`frame_feed`, and :attr:`imu_feed` when there is one)."""
         self.frame_feed.start(self)
         if self.imu_feed is not None:
             self.imu_feed.start(self)

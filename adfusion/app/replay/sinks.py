@@ -504,8 +504,9 @@ class LayoutSink:
     output marked ``incomplete`` and nothing else. Given before the :class:`LogSink` in a
     run's sinks it is closed after it, so the layout comes once the log is complete."""
 
-    def __init__(self, out_path) -> None:
+    def __init__(self, out_path, *, live: bool = False) -> None:
         self.path = self.path_for(out_path)
+        self.live = live  # adfusion live's: no truth panels, a latency plot
 
     @staticmethod
     def path_for(out_path):
@@ -526,12 +527,17 @@ class LayoutSink:
         pass
 
     def close(self) -> None:
+        self.write()
+
+    def write(self) -> None:
+        """Write the layout file now."""
         import json
 
         from adfusion.app.layout import foxglove_layout
         from adfusion.outfiles import write_atomic
 
-        write_atomic(self.path, json.dumps(foxglove_layout(truth=True), indent=2))
+        write_atomic(self.path, json.dumps(foxglove_layout(truth=not self.live,
+                                                           live=self.live), indent=2))
 
     def abort(self, reason: str) -> None:
         """The run failed: no layout (the output it would open is incomplete)."""
